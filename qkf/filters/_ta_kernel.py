@@ -1,0 +1,547 @@
+"""Compiled inner loop of the transfer-alignment filter (see ``transfer_alignment.py``).
+
+One call runs a block of epochs for every trial: trials in parallel (``prange``), epochs in
+sequence. The covariance is held in scaled units ``P̃ = D⁻¹ P D⁻¹`` (``D`` = prior sigmas), and
+measurements are scaled by their nominal sigmas, so every matrix the arithmetic touches is of
+order one although the physical variances span 1e-10 to 1e-18.
+
+The math is that of ``qkf.model`` (numpy); tests check the two against each other. Quaternions
+are scalar-last, as scipy stores them.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from qkf.filters.kalman import (
+    backward_solve_t,
+    cholesky_inplace,
+    forward_solve,
+    make_workspace,
+    update_one,
+)
+
+_JIT = {"cache": True, "fastmath": {"reassoc", "contract", "arcp"}}
+
+# Column l of Ω(ω) has one non-zero, ω[_OM_COL[l]], in row _OM_ROW[l].
+_OM_ROW = np.array([0, 1, 2, 0, 0, 1, 1, 2, 2])
+_OM_COL = np.array([0, 1, 2, 1, 2, 2, 0, 0, 1])
+
+
+@nb.njit(**_JIT)
+def _rodrigues(theta: float) -> tuple[float, float, float]:
+    """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.so3.rodrigues_coefficients)."""
+    t2 = theta * theta
+    if theta < 0.1:
+        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0 - t2 * t2 * t2 / 5040.0 + t2**4 / 362880.0
+        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0 - t2 * t2 * t2 / 40320.0 + t2**4 / 3628800.0
+        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0 - t2**3 / 362880.0 + t2**4 / 39916800.0
+    else:
+        s = np.sin(theta)
+        h = np.sin(0.5 * theta)
+        a = s / theta
+        b = 2.0 * h * h / t2
+        c = (theta - s) / (t2 * theta)
+    return a, b, c
+
+
+@nb.njit(**_JIT)
+def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
+    out_w[0, 0] = 0.0
+    out_w[0, 1] = -w[2]
+    out_w[0, 2] = w[1]
+    out_w[1, 0] = w[2]
+    out_w[1, 1] = 0.0
+    out_w[1, 2] = -w[0]
+    out_w[2, 0] = -w[1]
+    out_w[2, 1] = w[0]
+    out_w[2, 2] = 0.0
+    for i in range(3):
+        for j in range(3):
+            v = 0.0
+            for k in range(3):
+                v += out_w[i, k] * out_w[k, j]
+            out_w2[i, j] = v
+
+
+@nb.njit(**_JIT)
+def _transition(
+    w_hat: np.ndarray, s: float, wx: np.ndarray, wx2: np.ndarray, r: np.ndarray, g: np.ndarray
+) -> None:
+    """R = Exp(−ω̂ s), Γ = s · J(−ω̂ s) into ``r`` and ``g``; ``wx``, ``wx2`` are scratch."""
+    phi = -s * w_hat
+    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    a, b, c = _rodrigues(theta)
+    _skew_sq(phi, wx, wx2)
+    for i in range(3):
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            r[i, j] = e + a * wx[i, j] + b * wx2[i, j]
+            g[i, j] = s * (e + b * wx[i, j] + c * wx2[i, j])
+
+
+@nb.njit(**_JIT)
+def quat_mul(p: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
+    """Hamilton product ``p ⊗ q`` (scalar-last), so that R(p ⊗ q) = R(p) R(q)."""
+    px, py, pz, pw = p[0], p[1], p[2], p[3]
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    out[0] = pw * qx + qw * px + py * qz - pz * qy
+    out[1] = pw * qy + qw * py + pz * qx - px * qz
+    out[2] = pw * qz + qw * pz + px * qy - py * qx
+    out[3] = pw * qw - px * qx - py * qy - pz * qz
+
+
+@nb.njit(**_JIT)
+def quat_from_rotvec(phi: np.ndarray, out: np.ndarray) -> None:
+    """Quaternion of ``Exp(φ)`` (scalar-last)."""
+    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    if theta < 1e-4:
+        t2 = theta * theta
+        k = 0.5 - t2 / 48.0 + t2 * t2 / 3840.0
+    else:
+        k = np.sin(0.5 * theta) / theta
+    out[0] = k * phi[0]
+    out[1] = k * phi[1]
+    out[2] = k * phi[2]
+    out[3] = np.cos(0.5 * theta)
+
+
+@nb.njit(**_JIT)
+def rotvec_from_quat(q: np.ndarray, out: np.ndarray) -> None:
+    """``Log`` of a unit quaternion (scalar-last) as a rotation vector, angle in [0, π]."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    n = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 / w if n < 1e-12 else 2.0 * np.arctan2(n, w) / n
+    out[0] = k * x
+    out[1] = k * y
+    out[2] = k * z
+
+
+@nb.njit(**_JIT)
+def _normalize(q: np.ndarray) -> None:
+    n = np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    for i in range(4):
+        q[i] /= n
+
+
+@nb.njit(**_JIT)
+def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray, w: np.ndarray):  # type: ignore[no-untyped-def]
+    """A = (I + K(p̂))⁻¹ and ω̂ = A (ω̃ − b̂) into ``a`` and ``w``; False if singular."""
+    m = np.empty((3, 3))
+    m[0, 0] = 1.0 + p_hat[0]
+    m[1, 1] = 1.0 + p_hat[1]
+    m[2, 2] = 1.0 + p_hat[2]
+    m[0, 1], m[0, 2], m[1, 2] = p_hat[3], p_hat[4], p_hat[5]
+    m[1, 0], m[2, 0], m[2, 1] = p_hat[6], p_hat[7], p_hat[8]
+    c00 = m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]
+    c01 = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
+    c02 = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
+    det = m[0, 0] * c00 + m[0, 1] * c01 + m[0, 2] * c02
+    if not (abs(det) > 1e-12 and np.isfinite(det)):
+        return False
+    a[0, 0] = c00 / det
+    a[1, 0] = c01 / det
+    a[2, 0] = c02 / det
+    a[0, 1] = (m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]) / det
+    a[1, 1] = (m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]) / det
+    a[2, 1] = (m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]) / det
+    a[0, 2] = (m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]) / det
+    a[1, 2] = (m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]) / det
+    a[2, 2] = (m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]) / det
+    u0 = gyro[0] - b_hat[0]
+    u1 = gyro[1] - b_hat[1]
+    u2 = gyro[2] - b_hat[2]
+    for i in range(3):
+        w[i] = a[i, 0] * u0 + a[i, 1] * u1 + a[i, 2] * u2
+    return True
+
+
+@nb.njit(**_JIT)
+def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """``A Ω(ω)`` (3×9) into ``out``."""
+    for l in range(9):
+        col = _OM_ROW[l]
+        v = w[_OM_COL[l]]
+        for i in range(3):
+            out[i, l] = a[i, col] * v
+
+
+@nb.njit(**_JIT)
+def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int) -> float:
+    """νᵀ S⁻¹ ν restricted to rows/cols lo:lo+3 of S (marginal NIS of one measurement block)."""
+    s = np.empty((3, 3))
+    y = np.empty(3)
+    for i in range(3):
+        y[i] = nu[lo + i]
+        for j in range(3):
+            s[i, j] = s_full[lo + i, lo + j]
+    if not cholesky_inplace(s):
+        return np.nan
+    forward_solve(s, y)
+    return y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
+
+
+@nb.njit(**_JIT)
+def _correlation_correction(  # noqa: PLR0913
+    p: np.ndarray,
+    q_hat: np.ndarray,
+    ws: tuple[np.ndarray, ...],
+    c_tr: np.ndarray,
+    phi_top: np.ndarray,
+    w_corr: np.ndarray,
+    sinv_rr: np.ndarray,
+    unit: np.ndarray,
+    qinc: np.ndarray,
+    qtmp: np.ndarray,
+    vec: np.ndarray,
+    d: np.ndarray,
+) -> None:
+    """Prediction terms for process noise correlated with the rate measurement noise.
+
+    With ``C = E[w_k v_kᵀ]`` (non-zero only between the attitude process noise and the rate
+    rows), the one-step prediction of the Kalman filter becomes (e.g. Simon 2006, §7.1)::
+
+        x̂⁻_{k+1} = Φ x̂⁺_k + C S⁻¹ ν
+        P⁻_{k+1} = Φ P⁺_k Φᵀ + Q − Φ K Cᵀ − C Kᵀ Φᵀ − C S⁻¹ Cᵀ
+
+    Everything here is in the scaled units of the kernel; ``ws`` holds ``Kᵀ``, the Cholesky
+    factor of ``S`` and ``S⁻¹ ν`` from the update of this epoch.
+    """
+    kt = ws[1]
+    chol = ws[4]
+    y = ws[5]
+    m = chol.shape[0]
+    # W = C̃_θr K̃_rᵀ (3×15)
+    for i in range(3):
+        for j in range(15):
+            v = 0.0
+            for c in range(3):
+                v += c_tr[i, c] * kt[3 + c, j]
+            w_corr[i, j] = v
+    # V = W Φ̃ᵀ: columns ≥ 3 of Φ̃ᵀ are the identity
+    v_tt = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            v = 0.0
+            for c in range(15):
+                v += w_corr[i, c] * phi_top[j, c]
+            v_tt[i, j] = v
+    for i in range(3):
+        for j in range(3, 15):
+            p[i, j] -= w_corr[i, j]
+            p[j, i] -= w_corr[i, j]
+    # (S⁻¹)_rr from the Cholesky factor
+    for j in range(3):
+        for i in range(m):
+            unit[i] = 0.0
+        unit[3 + j] = 1.0
+        forward_solve(chol, unit)
+        backward_solve_t(chol, unit)
+        for i in range(3):
+            sinv_rr[i, j] = unit[3 + i]
+    for i in range(3):
+        for j in range(3):
+            v = 0.0
+            for c1 in range(3):
+                for c2 in range(3):
+                    v += c_tr[i, c1] * sinv_rr[c1, c2] * c_tr[j, c2]
+            p[i, j] -= v + v_tt[i, j] + v_tt[j, i]
+    for i in range(3):
+        for j in range(i + 1, 3):
+            v = 0.5 * (p[i, j] + p[j, i])
+            p[i, j] = v
+            p[j, i] = v
+    # predicted attitude error C̃ S̃⁻¹ ν̃, folded into Ĉ
+    for i in range(3):
+        v = 0.0
+        for c in range(3):
+            v += c_tr[i, c] * y[3 + c]
+        vec[i] = v * d[i]
+    quat_from_rotvec(vec, qinc)
+    quat_mul(q_hat, qinc, qtmp)
+    _normalize(qtmp)
+    for i in range(4):
+        q_hat[i] = qtmp[i]
+
+
+@nb.njit(parallel=True, **_JIT)
+def run_block(  # noqa: PLR0913, PLR0915
+    q_hat: np.ndarray,  # (B, 4)   in/out
+    b_hat: np.ndarray,  # (B, 3)   in/out, rad/s
+    p_hat: np.ndarray,  # (B, 9)   in/out
+    pt: np.ndarray,  # (B, 15, 15) in/out, scaled covariance
+    diverged: np.ndarray,  # (B,) bool in/out
+    gyro: np.ndarray,  # (B, n, 3) rad/s
+    ads_q: np.ndarray,  # (B, n, 4)
+    ads_rate: np.ndarray,  # (B, n, 3) rad/s
+    has_meas: np.ndarray,  # (n,) bool
+    kappa: np.ndarray,  # (B, n)
+    dt: float,
+    sigma_v: float,
+    sigma_u: float,
+    qp0: float,
+    sigma_a: float,
+    sigma_r: float,
+    use_rate: bool,
+    correlated: bool,  # account for the gyro noise shared by z_r,k and the step k → k+1
+    d: np.ndarray,  # (15,) state scale
+    gl_s: np.ndarray,  # (m,) quadrature nodes on [0, 1]
+    gl_w: np.ndarray,  # (m,) weights on [0, 1]
+    rec_est: np.ndarray,  # (B, n, 16): q̂, b̂, p̂ after the update
+    rec_var: np.ndarray,  # (B, n, 15): diag P after the update, SI
+    rec_cov: np.ndarray,  # (B, n or 0, 15, 15): P after the update, SI
+    rec_dx: np.ndarray,  # (B, n, 15): correction applied at the update, SI
+    rec_innov: np.ndarray,  # (B, n, 6): innovation, SI (NaN where absent)
+    rec_stats: np.ndarray,  # (B, n, 4): NIS attitude, NIS rate, total NIS, log det S
+    rec_rate: np.ndarray,  # (B, n, 3): ω̂ used for propagation, rad/s
+) -> None:
+    n_trials = q_hat.shape[0]
+    n_ep = gyro.shape[1]
+    m = 6 if use_rate else 3
+    full_cov = rec_cov.shape[1] > 0
+    e_a = sigma_a
+    e_r = np.sqrt(sigma_r**2 + sigma_v**2 / dt)
+    inv_ea = 1.0 / e_a
+    inv_er = 1.0 / e_r
+    d_er = d * inv_er
+    rv_scaled = sigma_v**2 / dt * inv_er**2
+    rr_scaled = (sigma_r * inv_er) ** 2
+    n_nodes = gl_s.shape[0]
+    for bi in nb.prange(n_trials):
+        p = pt[bi]
+        a = np.empty((3, 3))
+        w = np.empty(3)
+        aom = np.empty((3, 9))
+        h = np.zeros((m, 15))
+        r = np.zeros((m, m))
+        x = np.zeros(15)
+        nu = np.empty(m)
+        qtmp = np.empty(4)
+        qinc = np.empty(4)
+        vec = np.empty(3)
+        wx = np.empty((3, 3))
+        wx2 = np.empty((3, 3))
+        rr = np.empty((3, 3))
+        gg = np.empty((3, 3))
+        phi_top = np.empty((3, 15))
+        t_mat = np.empty((3, 15))
+        m1 = np.empty((3, 3))
+        m2 = np.empty((3, 3))
+        q_tt = np.empty((3, 3))
+        g_int = np.empty((3, 3))
+        tmp = np.empty((3, 3))
+        s_keep = np.empty((m, m))
+        c_tr = np.empty((3, 3))
+        w_corr = np.empty((3, 15))
+        sinv_rr = np.empty((3, 3))
+        unit = np.empty(m)
+        ws = make_workspace(15, m)
+        for k in range(n_ep):
+            if diverged[bi]:
+                for i in range(16):
+                    rec_est[bi, k, i] = np.nan
+                for i in range(15):
+                    rec_var[bi, k, i] = np.nan
+                    rec_dx[bi, k, i] = np.nan
+                for i in range(6):
+                    rec_innov[bi, k, i] = np.nan
+                for i in range(4):
+                    rec_stats[bi, k, i] = np.nan
+                for i in range(3):
+                    rec_rate[bi, k, i] = np.nan
+                if full_cov:
+                    rec_cov[bi, k, :, :] = np.nan
+                continue
+            bad = not _rate(gyro[bi, k], b_hat[bi], p_hat[bi], a, w)
+            updated_rate = False
+            # ---- measurement update -------------------------------------------------------
+            for i in range(15):
+                x[i] = 0.0
+            for i in range(6):
+                rec_innov[bi, k, i] = np.nan
+            rec_stats[bi, k, 0] = np.nan
+            rec_stats[bi, k, 1] = np.nan
+            rec_stats[bi, k, 2] = np.nan
+            rec_stats[bi, k, 3] = np.nan
+            if has_meas[k] and not bad:
+                qtmp[0] = -q_hat[bi, 0]
+                qtmp[1] = -q_hat[bi, 1]
+                qtmp[2] = -q_hat[bi, 2]
+                qtmp[3] = q_hat[bi, 3]
+                quat_mul(qtmp, ads_q[bi, k], qinc)
+                rotvec_from_quat(qinc, vec)
+                for i in range(3):
+                    rec_innov[bi, k, i] = vec[i]
+                    nu[i] = vec[i] * inv_ea
+                    h[i, i] = d[i] * inv_ea
+                    r[i, i] = 1.0
+                if use_rate:
+                    _a_omega(a, w, aom)
+                    for i in range(3):
+                        zr = ads_rate[bi, k, i] - w[i]
+                        rec_innov[bi, k, 3 + i] = zr
+                        nu[3 + i] = zr * inv_er
+                        for j in range(3):
+                            h[3 + i, 3 + j] = -a[i, j] * d_er[3 + j]
+                            aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
+                            r[3 + i, 3 + j] = rv_scaled * aat
+                        r[3 + i, 3 + i] += rr_scaled
+                        for l in range(9):
+                            h[3 + i, 6 + l] = -aom[i, l] * d_er[6 + l]
+                ok, nis, logdet = update_one(x, p, nu, h, r, s_keep, ws)
+                if not ok:
+                    bad = True
+                else:
+                    updated_rate = use_rate and correlated
+                    # log det S in SI = log det S̃ + 2 Σ log(measurement scale)
+                    scale_logdet = 6.0 * np.log(e_a)
+                    if use_rate:
+                        scale_logdet += 6.0 * np.log(e_r)
+                    rec_stats[bi, k, 0] = _nis_block(s_keep, nu, 0)
+                    rec_stats[bi, k, 1] = _nis_block(s_keep, nu, 3) if use_rate else np.nan
+                    rec_stats[bi, k, 2] = nis
+                    rec_stats[bi, k, 3] = logdet + scale_logdet
+                    # reset: Ĉ ← Ĉ Exp(δθ), b̂ += Δb, p̂ += Δp
+                    for i in range(15):
+                        x[i] *= d[i]
+                    quat_from_rotvec(x[0:3], qinc)
+                    quat_mul(q_hat[bi], qinc, qtmp)
+                    _normalize(qtmp)
+                    for i in range(4):
+                        q_hat[bi, i] = qtmp[i]
+                    for i in range(3):
+                        b_hat[bi, i] += x[3 + i]
+                    for i in range(9):
+                        p_hat[bi, i] += x[6 + i]
+                    bad = not _rate(gyro[bi, k], b_hat[bi], p_hat[bi], a, w)
+            for i in range(15):
+                rec_dx[bi, k, i] = x[i]
+            # ---- record the a-posteriori estimate ----------------------------------------
+            for i in range(4):
+                rec_est[bi, k, i] = q_hat[bi, i]
+            for i in range(3):
+                rec_est[bi, k, 4 + i] = b_hat[bi, i]
+                rec_rate[bi, k, i] = w[i]
+            for i in range(9):
+                rec_est[bi, k, 7 + i] = p_hat[bi, i]
+            for i in range(15):
+                rec_var[bi, k, i] = p[i, i] * d[i] * d[i]
+                if not (np.isfinite(p[i, i]) and p[i, i] > 0.0):
+                    bad = True
+            if full_cov:
+                for i in range(15):
+                    for j in range(15):
+                        rec_cov[bi, k, i, j] = p[i, j] * d[i] * d[j]
+            if bad:
+                diverged[bi] = True
+                continue
+            # ---- propagate: Ĉ ← Ĉ Exp(ω̂ Δt), P̃ ← Φ̃ P̃ Φ̃ᵀ + Q̃d --------------------------
+            for i in range(3):
+                vec[i] = w[i] * dt
+            quat_from_rotvec(vec, qinc)
+            quat_mul(q_hat[bi], qinc, qtmp)
+            _normalize(qtmp)
+            for i in range(4):
+                q_hat[bi, i] = qtmp[i]
+            q_p = kappa[bi, k] * qp0
+            _a_omega(a, w, aom)
+            _transition(w, dt, wx, wx2, rr, gg)
+            if updated_rate:
+                # C̃ = E[w̃_θ ṽ_rᵀ] = Γ A (σ_v²/Δt) Aᵀ, scaled by d_θ and e_r
+                for i in range(3):
+                    for j in range(3):
+                        v = 0.0
+                        for c in range(3):
+                            v += gg[i, c] * (a[j, 0] * a[c, 0] + a[j, 1] * a[c, 1] + a[j, 2] * a[c, 2])
+                        c_tr[i, j] = v * sigma_v**2 / dt / (d[i] * e_r)
+            for i in range(3):
+                for j in range(3):
+                    phi_top[i, j] = rr[i, j] * d[j] / d[i]
+                    v = 0.0
+                    for c in range(3):
+                        v += gg[i, c] * a[c, j]
+                    phi_top[i, 3 + j] = -v * d[3 + j] / d[i]
+                for l in range(9):
+                    v = 0.0
+                    for c in range(3):
+                        v += gg[i, c] * aom[c, l]
+                    phi_top[i, 6 + l] = -v * d[6 + l] / d[i]
+            # T = Φ̃_top P̃ (3×15)
+            for i in range(3):
+                for j in range(15):
+                    v = 0.0
+                    for c in range(15):
+                        v += phi_top[i, c] * p[c, j]
+                    t_mat[i, j] = v
+            # M1 = σ_v² A Aᵀ, M2 = (σ_u² + q_p |ω̂|²) A Aᵀ   (Ω Ωᵀ = |ω̂|² I)
+            w2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+            for i in range(3):
+                for j in range(3):
+                    aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
+                    m1[i, j] = sigma_v**2 * aat
+                    m2[i, j] = (sigma_u**2 + q_p * w2) * aat
+                    q_tt[i, j] = 0.0
+                    g_int[i, j] = 0.0
+            for nd in range(n_nodes):
+                s_j = gl_s[nd] * dt
+                w_j = gl_w[nd] * dt
+                _transition(w, s_j, wx, wx2, rr, gg)
+                for i in range(3):
+                    for j in range(3):
+                        v1 = 0.0
+                        v2 = 0.0
+                        for c in range(3):
+                            v1 += rr[i, c] * m1[c, j]
+                            v2 += gg[i, c] * m2[c, j]
+                        tmp[i, j] = v1
+                        wx[i, j] = v2  # reuse scratch: Γ M2
+                for i in range(3):
+                    for j in range(3):
+                        v = 0.0
+                        for c in range(3):
+                            v += tmp[i, c] * rr[j, c] + wx[i, c] * gg[j, c]
+                        q_tt[i, j] += w_j * v
+                        g_int[i, j] += w_j * gg[i, j]
+            # P̃ ← Φ̃ P̃ Φ̃ᵀ: rows/cols 0..2 change, the rest stays
+            for i in range(3):
+                for j in range(3):
+                    v = 0.0
+                    for c in range(15):
+                        v += t_mat[i, c] * phi_top[j, c]
+                    tmp[i, j] = v
+            for i in range(3):
+                for j in range(3, 15):
+                    p[i, j] = t_mat[i, j]
+                    p[j, i] = t_mat[i, j]
+            for i in range(3):
+                for j in range(3):
+                    p[i, j] = 0.5 * (tmp[i, j] + tmp[j, i]) + 0.5 * (
+                        q_tt[i, j] + q_tt[j, i]
+                    ) / (d[i] * d[j])
+            # + Q̃d off-diagonal attitude blocks and the random-walk diagonals
+            for i in range(3):
+                for j in range(3):
+                    v = 0.0
+                    for c in range(3):
+                        v += g_int[i, c] * a[c, j]
+                    qtb = -(sigma_u**2) * v / (d[i] * d[3 + j])
+                    p[i, 3 + j] += qtb
+                    p[3 + j, i] += qtb
+                for l in range(9):
+                    v = 0.0
+                    for c in range(3):
+                        v += g_int[i, c] * aom[c, l]
+                    qtp = -q_p * v / (d[i] * d[6 + l])
+                    p[i, 6 + l] += qtp
+                    p[6 + l, i] += qtp
+            for i in range(3):
+                p[3 + i, 3 + i] += sigma_u**2 * dt / d[3 + i] ** 2
+            for i in range(9):
+                p[6 + i, 6 + i] += q_p * dt / d[6 + i] ** 2
+            if updated_rate:
+                _correlation_correction(
+                    p, q_hat[bi], ws, c_tr, phi_top, w_corr, sinv_rr, unit, qinc, qtmp, vec, d
+                )

@@ -1,0 +1,220 @@
+r"""Truth simulation of the transfer-alignment scenario (SPEC §1), vectorised over trials.
+
+Per epoch ``t_k = k Δt`` (k = 0 … N−1)::
+
+    ω_k   = (0, −n, 0) + manoeuvre rates                 (deterministic, body frame, rad/s)
+    C_{k+1} = C_k Exp(ω_k Δt)                              (C: body → inertial, C_0 = I)
+    b_{k+1} = b_k + N(0, σ_u² Δt)                          (rad/s)
+    p_{k+1} = p_k + N(0, σ_p(t_k)² Δt) + jumps             (dimensionless)
+    ω̃_k   = (I + K(p_k)) ω_k + b_k + N(0, σ_v²/Δt)       (gyro, rad/s)
+    C_ADS,k = C_k Exp(N(0, σ_a² I)),   ω_ADS,k = ω_k + N(0, σ_r² I)
+
+Randomness: trial ``i`` of a run with seed ``s`` draws from
+``numpy.random.SeedSequence([s, i])``, split into one child stream per noise source, so a trial
+is reproducible on its own (whatever the batch it is simulated in) and changing one source
+(say the ADS noise level) leaves the others' normalised draws unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from qkf import units
+from qkf.config import Config, Scenario
+from qkf.model import calibration_matrix
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+_STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate")
+
+
+@dataclass(frozen=True)
+class TruthParams:
+    """Scenario constants in SI."""
+
+    dt: float
+    n_epochs: int
+    sigma_v: float  # rad/√s
+    sigma_u: float  # rad/s^1.5
+    sigma_a: float  # rad (true ADS attitude noise)
+    sigma_r: float  # rad/s (true ADS rate noise)
+    b0: np.ndarray  # (3,) rad/s
+    p0: np.ndarray  # (9,)
+    randomize_truth: bool
+    prior_sigma_b: float  # rad/s, used when randomize_truth
+    prior_sigma_p: float  # used when randomize_truth
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> TruthParams:
+        sc = cfg.scenario
+        tr = sc.truth
+        return cls(
+            dt=sc.dt_s,
+            n_epochs=n_epochs(sc),
+            sigma_v=sc.gyro.arw_deg_sqrt_h * units.DEG_PER_SQRT_H,
+            sigma_u=sc.gyro.rrw_deg_h_1_5 * units.DEG_PER_H_1_5,
+            sigma_a=sc.ads.attitude_sigma_arcsec * units.ARCSEC,
+            sigma_r=sc.ads.rate_sigma_degph * units.DEG_PER_H,
+            b0=np.asarray(tr.bias_degph) * units.DEG_PER_H,
+            p0=np.concatenate(
+                [np.asarray(tr.scale_factor_ppm) * units.PPM, np.asarray(tr.misalignment_urad) * units.URAD]
+            ),
+            randomize_truth=sc.randomize_truth,
+            prior_sigma_b=cfg.filter.initial_sigma.bias_degph * units.DEG_PER_H,
+            prior_sigma_p=cfg.filter.initial_sigma.calibration_ppm * units.PPM,
+        )
+
+
+@dataclass(frozen=True)
+class ScenarioData:
+    """Simulated truth and sensor data for ``B`` trials over ``N`` epochs (SI units).
+
+    Attitudes are unit quaternions (scalar-last) of the body → inertial rotation.
+    """
+
+    t: np.ndarray  # (N,) s
+    dt: float
+    omega_true: np.ndarray  # (N, 3) rad/s, the same for every trial
+    q_true: np.ndarray  # (N, 4), the same for every trial
+    bias: np.ndarray  # (B, N, 3) rad/s
+    calib: np.ndarray  # (B, N, 9)
+    gyro: np.ndarray  # (B, N, 3) rad/s
+    ads_q: np.ndarray  # (B, N, 4)
+    ads_rate: np.ndarray  # (B, N, 3) rad/s
+    has_meas: np.ndarray  # (N,) bool
+    trial_ids: np.ndarray  # (B,) the trial index each row was drawn for
+
+    @property
+    def n_trials(self) -> int:
+        return int(self.gyro.shape[0])
+
+    @property
+    def n_epochs(self) -> int:
+        return int(self.t.shape[0])
+
+
+def n_epochs(sc: Scenario) -> int:
+    """Number of epochs ``N = round(duration / Δt)``."""
+    return int(round(sc.duration_s / sc.dt_s))
+
+
+def orbit_rate(altitude_km: float) -> float:
+    """Mean motion ``n = sqrt(μ / a³)`` of a circular orbit, rad/s."""
+    a = units.R_EARTH + altitude_km * 1e3
+    return float(np.sqrt(units.MU_EARTH / a**3))
+
+
+def true_rates(sc: Scenario) -> np.ndarray:
+    """Deterministic body rate ``ω(t_k)`` (N, 3) in rad/s: orbit rate plus manoeuvres.
+
+    A manoeuvre covers the epochs whose step ``[t_k, t_k + Δt)`` starts inside it.
+    """
+    t = np.arange(n_epochs(sc)) * sc.dt_s
+    w = np.zeros((t.size, 3))
+    w[:, 1] = -orbit_rate(sc.altitude_km)
+    for m in sc.maneuvers:
+        on = (t >= m.start_s - 1e-9) & (t < m.start_s + m.duration_s - 1e-9)
+        w[on, _AXES[m.axis]] += m.rate_deg_s * units.DEG_PER_S
+    return w
+
+
+def measurement_mask(sc: Scenario) -> np.ndarray:
+    """``True`` at epochs with an ADS measurement (outside every gap window)."""
+    t = np.arange(n_epochs(sc)) * sc.dt_s
+    mask = np.ones(t.size, dtype=bool)
+    for g in sc.ads.gaps:
+        mask &= ~((t >= g.start_s) & (t < g.end_s))
+    return mask
+
+
+def calibration_walk_sigma(sc: Scenario) -> np.ndarray:
+    """Random-walk intensity of the true calibration per step ``[t_k, t_k+1)``, 1/√s (N,)."""
+    t = np.arange(n_epochs(sc)) * sc.dt_s
+    sig = np.full(t.size, sc.calibration_walk.sigma_per_sqrt_s)
+    for seg in sc.calibration_walk.segments:
+        sig[(t >= seg.start_s) & (t < seg.end_s)] = seg.sigma_per_sqrt_s
+    return sig
+
+
+def true_attitude(omega: np.ndarray, dt: float) -> np.ndarray:
+    """Quaternions (N, 4) of ``C_{k+1} = C_k Exp(ω_k Δt)`` from ``C_0 = I``."""
+    steps = Rotation.from_rotvec(omega[:-1] * dt)
+    q = np.empty((omega.shape[0], 4))
+    c = Rotation.identity()
+    q[0] = c.as_quat()
+    for k in range(omega.shape[0] - 1):
+        c = c * steps[k]
+        q[k + 1] = c.as_quat()
+    return q
+
+
+def trial_streams(seed: int, trial: int) -> dict[str, np.random.Generator]:
+    """The independent generators of one trial, one per noise source."""
+    children = np.random.SeedSequence([seed, trial]).spawn(len(_STREAMS))
+    return {name: np.random.default_rng(ss) for name, ss in zip(_STREAMS, children, strict=True)}
+
+
+def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> ScenarioData:
+    """Simulate the scenario of ``cfg`` for the given trial indices (or ``range(trials)``)."""
+    sc = cfg.scenario
+    tp = TruthParams.from_config(cfg)
+    ids = np.arange(trials) if isinstance(trials, int) else np.asarray(trials, dtype=int)
+    if ids.ndim != 1 or ids.size == 0:
+        raise ValueError("trials must be a positive count or a non-empty list of indices")
+    n, dt, b = tp.n_epochs, tp.dt, ids.size
+    t = np.arange(n) * dt
+    omega = true_rates(sc)
+    q_true = true_attitude(omega, dt)
+    walk_sigma = calibration_walk_sigma(sc)
+    jumps = np.zeros((n, 9))
+    for j in sc.calibration_jumps:
+        after = t >= j.t_s - 1e-9
+        jumps[after, 0:3] += j.scale_factor_ppm * units.PPM
+        jumps[after, 3:9] += j.misalignment_urad * units.URAD
+
+    bias = np.empty((b, n, 3))
+    calib = np.empty((b, n, 9))
+    eta_v = np.empty((b, n, 3))
+    nu_a = np.empty((b, n, 3))
+    nu_r = np.empty((b, n, 3))
+    for row, trial in enumerate(ids):
+        g = trial_streams(seed, int(trial))
+        if tp.randomize_truth:
+            b0 = g["truth"].normal(0.0, tp.prior_sigma_b, 3)
+            p0 = g["truth"].normal(0.0, tp.prior_sigma_p, 9)
+        else:
+            b0, p0 = tp.b0, tp.p0
+        db = g["bias_walk"].normal(0.0, tp.sigma_u * np.sqrt(dt), (n - 1, 3))
+        bias[row, 0] = b0
+        np.cumsum(db, axis=0, out=bias[row, 1:])
+        bias[row, 1:] += b0
+        dp = g["calib_walk"].normal(0.0, 1.0, (n - 1, 9)) * (walk_sigma[:-1, None] * np.sqrt(dt))
+        calib[row, 0] = p0
+        np.cumsum(dp, axis=0, out=calib[row, 1:])
+        calib[row, 1:] += p0
+        eta_v[row] = g["gyro"].normal(0.0, tp.sigma_v / np.sqrt(dt), (n, 3))
+        nu_a[row] = g["ads_attitude"].normal(0.0, tp.sigma_a, (n, 3))
+        nu_r[row] = g["ads_rate"].normal(0.0, tp.sigma_r, (n, 3))
+    calib += jumps[None]
+
+    kw = np.einsum("bnij,nj->bni", calibration_matrix(calib), omega)
+    gyro = omega[None] + kw + bias + eta_v
+    ads_q = (
+        Rotation.from_quat(np.broadcast_to(q_true, (b, n, 4)).reshape(-1, 4))
+        * Rotation.from_rotvec(nu_a.reshape(-1, 3))
+    ).as_quat()
+    return ScenarioData(
+        t=t,
+        dt=dt,
+        omega_true=omega,
+        q_true=q_true,
+        bias=bias,
+        calib=calib,
+        gyro=gyro,
+        ads_q=ads_q.reshape(b, n, 4),
+        ads_rate=omega[None] + nu_r,
+        has_meas=measurement_mask(sc),
+        trial_ids=ids,
+    )
