@@ -155,7 +155,7 @@ def discretize(
 
     qd = np.zeros((*lead, N_STATES, N_STATES))
     qd[..., THETA, THETA] = 0.5 * (q_tt + np.swapaxes(q_tt, -1, -2))
-    q_tb = -sigma_u**2 * (gamma_int @ a)
+    q_tb = -(sigma_u**2) * (gamma_int @ a)
     q_tp = -q_p[..., None, None] * (gamma_int @ a_om)
     qd[..., THETA, BIAS] = q_tb
     qd[..., BIAS, THETA] = np.swapaxes(q_tb, -1, -2)

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from qkf import units
 from qkf.config import Config, Scenario
 from qkf.model import calibration_matrix
+from qkf.quat import cumulative_rotation
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 _STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate")
@@ -59,7 +60,10 @@ class TruthParams:
             sigma_r=sc.ads.rate_sigma_degph * units.DEG_PER_H,
             b0=np.asarray(tr.bias_degph) * units.DEG_PER_H,
             p0=np.concatenate(
-                [np.asarray(tr.scale_factor_ppm) * units.PPM, np.asarray(tr.misalignment_urad) * units.URAD]
+                [
+                    np.asarray(tr.scale_factor_ppm) * units.PPM,
+                    np.asarray(tr.misalignment_urad) * units.URAD,
+                ]
             ),
             randomize_truth=sc.randomize_truth,
             prior_sigma_b=cfg.filter.initial_sigma.bias_degph * units.DEG_PER_H,
@@ -140,14 +144,9 @@ def calibration_walk_sigma(sc: Scenario) -> np.ndarray:
 
 def true_attitude(omega: np.ndarray, dt: float) -> np.ndarray:
     """Quaternions (N, 4) of ``C_{k+1} = C_k Exp(ω_k Δt)`` from ``C_0 = I``."""
-    steps = Rotation.from_rotvec(omega[:-1] * dt)
-    q = np.empty((omega.shape[0], 4))
-    c = Rotation.identity()
-    q[0] = c.as_quat()
-    for k in range(omega.shape[0] - 1):
-        c = c * steps[k]
-        q[k + 1] = c.as_quat()
-    return q
+    return cumulative_rotation(
+        np.array([0.0, 0.0, 0.0, 1.0]), np.ascontiguousarray(omega[:-1] * dt)
+    )
 
 
 def trial_streams(seed: int, trial: int) -> dict[str, np.random.Generator]:

@@ -21,6 +21,8 @@ from qkf.filters.kalman import (
     make_workspace,
     update_one,
 )
+from qkf.quat import normalize as _normalize
+from qkf.quat import quat_from_rotvec, quat_mul, rotvec_from_quat
 
 _JIT = {"cache": True, "fastmath": {"reassoc", "contract", "arcp"}}
 
@@ -82,52 +84,6 @@ def _transition(
 
 
 @nb.njit(**_JIT)
-def quat_mul(p: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
-    """Hamilton product ``p ⊗ q`` (scalar-last), so that R(p ⊗ q) = R(p) R(q)."""
-    px, py, pz, pw = p[0], p[1], p[2], p[3]
-    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
-    out[0] = pw * qx + qw * px + py * qz - pz * qy
-    out[1] = pw * qy + qw * py + pz * qx - px * qz
-    out[2] = pw * qz + qw * pz + px * qy - py * qx
-    out[3] = pw * qw - px * qx - py * qy - pz * qz
-
-
-@nb.njit(**_JIT)
-def quat_from_rotvec(phi: np.ndarray, out: np.ndarray) -> None:
-    """Quaternion of ``Exp(φ)`` (scalar-last)."""
-    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    if theta < 1e-4:
-        t2 = theta * theta
-        k = 0.5 - t2 / 48.0 + t2 * t2 / 3840.0
-    else:
-        k = np.sin(0.5 * theta) / theta
-    out[0] = k * phi[0]
-    out[1] = k * phi[1]
-    out[2] = k * phi[2]
-    out[3] = np.cos(0.5 * theta)
-
-
-@nb.njit(**_JIT)
-def rotvec_from_quat(q: np.ndarray, out: np.ndarray) -> None:
-    """``Log`` of a unit quaternion (scalar-last) as a rotation vector, angle in [0, π]."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    n = np.sqrt(x * x + y * y + z * z)
-    k = 2.0 / w if n < 1e-12 else 2.0 * np.arctan2(n, w) / n
-    out[0] = k * x
-    out[1] = k * y
-    out[2] = k * z
-
-
-@nb.njit(**_JIT)
-def _normalize(q: np.ndarray) -> None:
-    n = np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    for i in range(4):
-        q[i] /= n
-
-
-@nb.njit(**_JIT)
 def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray, w: np.ndarray):  # type: ignore[no-untyped-def]
     """A = (I + K(p̂))⁻¹ and ω̂ = A (ω̃ − b̂) into ``a`` and ``w``; False if singular."""
     m = np.empty((3, 3))
@@ -185,7 +141,7 @@ def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int) -> float:
 
 
 @nb.njit(**_JIT)
-def _correlation_correction(  # noqa: PLR0913
+def _correlation_correction(
     p: np.ndarray,
     q_hat: np.ndarray,
     ws: tuple[np.ndarray, ...],
@@ -268,7 +224,7 @@ def _correlation_correction(  # noqa: PLR0913
 
 
 @nb.njit(parallel=True, **_JIT)
-def run_block(  # noqa: PLR0913, PLR0915
+def run_block(
     q_hat: np.ndarray,  # (B, 4)   in/out
     b_hat: np.ndarray,  # (B, 3)   in/out, rad/s
     p_hat: np.ndarray,  # (B, 9)   in/out
@@ -434,7 +390,7 @@ def run_block(  # noqa: PLR0913, PLR0915
             if full_cov:
                 for i in range(15):
                     for j in range(15):
-                        rec_cov[bi, k, i, j] = p[i, j] * d[i] * d[j]
+                        rec_cov[bi, k, i, j] = p[i, j] * (d[i] * d[j])
             if bad:
                 diverged[bi] = True
                 continue
@@ -455,7 +411,9 @@ def run_block(  # noqa: PLR0913, PLR0915
                     for j in range(3):
                         v = 0.0
                         for c in range(3):
-                            v += gg[i, c] * (a[j, 0] * a[c, 0] + a[j, 1] * a[c, 1] + a[j, 2] * a[c, 2])
+                            v += gg[i, c] * (
+                                a[j, 0] * a[c, 0] + a[j, 1] * a[c, 1] + a[j, 2] * a[c, 2]
+                            )
                         c_tr[i, j] = v * sigma_v**2 / dt / (d[i] * e_r)
             for i in range(3):
                 for j in range(3):
@@ -518,9 +476,9 @@ def run_block(  # noqa: PLR0913, PLR0915
                     p[j, i] = t_mat[i, j]
             for i in range(3):
                 for j in range(3):
-                    p[i, j] = 0.5 * (tmp[i, j] + tmp[j, i]) + 0.5 * (
-                        q_tt[i, j] + q_tt[j, i]
-                    ) / (d[i] * d[j])
+                    p[i, j] = 0.5 * (tmp[i, j] + tmp[j, i]) + 0.5 * (q_tt[i, j] + q_tt[j, i]) / (
+                        d[i] * d[j]
+                    )
             # + Q̃d off-diagonal attitude blocks and the random-walk diagonals
             for i in range(3):
                 for j in range(3):

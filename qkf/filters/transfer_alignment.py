@@ -140,14 +140,14 @@ class TransferAlignmentKF:
         self.diverged[:] = False
 
     @property
-    def P(self) -> np.ndarray:  # noqa: N802 - the conventional name
+    def P(self) -> np.ndarray:
         """Covariance (B, 15, 15) in SI."""
-        return self._pt * self._d[:, None] * self._d[None, :]
+        return self._pt * np.outer(self._d, self._d)
 
     @P.setter
-    def P(self, value: np.ndarray) -> None:  # noqa: N802
+    def P(self, value: np.ndarray) -> None:
         value = np.asarray(value, dtype=float)
-        self._pt[:] = value / (self._d[:, None] * self._d[None, :])
+        self._pt[:] = value / np.outer(self._d, self._d)
 
     def copy(self) -> TransferAlignmentKF:
         """An independent copy (state and covariance), e.g. for an explorative filter."""

@@ -1,0 +1,39 @@
+# qkf: two commands set up a fresh machine and do the work.
+#   make bench   create .venv, install, run the main benchmark (results/paper/)
+#   make test    create .venv, install, run the test suite
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+# torch first and pinned: the CPU wheel on disk; any other spec pulls the CUDA stack.
+TORCH := torch==2.13.0
+
+.PHONY: install bench test lint typecheck speed clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet $(TORCH)
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+bench: $(STAMP)
+	$(BIN)/qkf bench configs/paper.yaml --methods kf --out results/paper
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: $(STAMP)
+	$(BIN)/mypy
+
+speed: $(STAMP)
+	$(BIN)/python benchmarks/filter_speed.py
+
+clean:
+	rm -rf $(VENV) results .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,127 @@
+"""Command line: ``qkf crlb`` and ``qkf bench`` (SPEC §8).
+
+Exit codes: 0 success, 2 bad input (config, option), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from qkf.config import Config, ConfigError, load_config
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="qkf: adaptive Kalman filtering gym for in-orbit gyro calibration.",
+)
+err = Console(stderr=True)
+out = Console()
+
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", help="Override a config value: dotted.key=value (YAML value)."),
+]
+
+
+def _fail(msg: str, code: int = 2) -> typer.Exit:
+    err.print(f"[bold red]error:[/] {msg}", highlight=False, markup=True)
+    return typer.Exit(code)
+
+
+def _load(config: Path, sets: list[str] | None) -> Config:
+    try:
+        return load_config(config, sets or [])
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+
+
+@app.command("crlb")
+def crlb_cmd(
+    config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
+    out_file: Annotated[Path, typer.Option("--out", help="CSV file to write.")],
+    set_: SetOption = None,
+    matching: Annotated[
+        str | None, typer.Option(help="Override the matching scheme: attitude | attitude_rate.")
+    ] = None,
+) -> None:
+    """Posterior Cramér–Rao bound per epoch (1-σ, display units) as CSV."""
+    sets = list(set_ or [])
+    if matching is not None:
+        sets.append(f"filter.matching={matching}")
+    cfg = _load(config, sets)
+    from qkf.crlb import crlb
+    from qkf.report import write_crlb_csv
+
+    write_crlb_csv(out_file, crlb(cfg))
+    out.print(f"wrote {out_file}")
+
+
+def _slug(value: object) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", str(value))
+
+
+@app.command("bench")
+def bench_cmd(
+    config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
+    methods: Annotated[str, typer.Option(help="Comma-separated methods.")] = "kf",
+    trials: Annotated[
+        int | None, typer.Option(help="Monte Carlo trials (config: run.trials).")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Seed (config: run.seed).")] = None,
+    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
+        "results/bench"
+    ),
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Monte Carlo comparison of filters: rms.csv, summary.csv, summary.md, crlb.csv, plots."""
+    from qkf.benchmark import parse_methods, run_benchmark
+    from qkf.io import atomic_write_csv
+    from qkf.report import SUMMARY_COLUMNS, summary_rows, write_bench
+
+    cfg = _load(config, set_)
+    if trials is not None and trials < 1:
+        raise _fail("--trials must be at least 1")
+    if seed is not None and seed < 0:
+        raise _fail("--seed must be non-negative")
+    try:
+        names = parse_methods(methods)
+    except ValueError as exc:
+        raise _fail(f"--methods: {exc}") from None
+
+    if cfg.sweep is None:
+        runs = [(None, cfg, out_dir)]
+    else:
+        runs = []
+        for value in cfg.sweep.values:
+            sub = _load(config, [*(set_ or []), f"{cfg.sweep.key}={value}"])
+            leaf = cfg.sweep.key.split(".")[-1]
+            runs.append((value, sub, out_dir / f"{leaf}={_slug(value)}"))
+    sweep_rows = []
+    for value, run_cfg, run_out in runs:
+        if value is not None:
+            out.print(f"[bold]{cfg.sweep.key if cfg.sweep else ''} = {value}[/]")
+        res = run_benchmark(run_cfg, names, trials=trials, seed=seed, progress=not quiet)
+        write_bench(res, run_out)
+        sweep_rows += [[value, *row] for row in summary_rows(res)]
+        out.print((run_out / "summary.md").read_text())
+        out.print(f"wrote {run_out}/")
+    if cfg.sweep is not None:
+        atomic_write_csv(
+            out_dir / "sweep_summary.csv", (cfg.sweep.key, *SUMMARY_COLUMNS), sweep_rows
+        )
+        out.print(f"wrote {out_dir / 'sweep_summary.csv'}")
+
+
+def main() -> None:  # pragma: no cover - entry point
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(app())

@@ -1,0 +1,99 @@
+"""`qkf bench`: the SPEC §8 files, reproducibility, sweeps, and no half-written output."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from qkf import benchmark
+from qkf.cli import app
+from qkf.report import SUMMARY_COLUMNS
+from qkf.states import STATE_COLUMNS
+from tests.conftest import CONFIGS
+
+runner = CliRunner()
+SHORT = ["--set", "scenario.duration_s=400", "--set", "run.chunk_trials=3"]
+
+
+def _bench(out: Path, *extra: str, config: str = "paper.yaml") -> None:
+    args = ["bench", str(CONFIGS / config), "--trials", "5", "--seed", "4", "--out", str(out), "--quiet"]
+    result = runner.invoke(app, [*args, *SHORT, *extra])
+    assert result.exit_code == 0, result.output + str(result.exception)
+
+
+def _read(path: Path) -> list[list[str]]:
+    with path.open() as f:
+        return list(csv.reader(f))
+
+
+def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
+    _bench(tmp_path)
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"rms.csv", "summary.csv", "summary.md", "crlb.csv", "rms_groups.png", "rms_states.png"} <= names
+    rms = _read(tmp_path / "rms.csv")
+    assert tuple(rms[0]) == ("method", "t_s", *STATE_COLUMNS)
+    assert len(rms) == 1 + 400 and {r[0] for r in rms[1:]} == {"kf"}
+    summary = _read(tmp_path / "summary.csv")
+    assert tuple(summary[0]) == SUMMARY_COLUMNS
+    row = dict(zip(summary[0], summary[1], strict=True))
+    assert row["method"] == "kf" and row["trials"] == "5"
+    # summary = RMS over the whole run / last 20 % of the per-epoch RMS, per group
+    per_epoch = np.array([r[2:] for r in rms[1:]], dtype=float)
+    ms_att = np.mean(per_epoch[:, 0:3] ** 2, axis=1)
+    np.testing.assert_allclose(float(row["att_arcsec_avg"]), np.sqrt(ms_att.mean()), rtol=1e-12)
+    np.testing.assert_allclose(float(row["att_arcsec_final"]), np.sqrt(ms_att[320:].mean()), rtol=1e-12)
+    md = (tmp_path / "summary.md").read_text()
+    assert "| kf | 5 |" in md and "CRLB" in md and "arcsec" in md
+    assert (tmp_path / "rms_groups.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_same_seed_same_numbers(tmp_path: Path) -> None:
+    _bench(tmp_path / "a")
+    _bench(tmp_path / "b")
+    assert (tmp_path / "a/rms.csv").read_bytes() == (tmp_path / "b/rms.csv").read_bytes()
+    sa, sb = _read(tmp_path / "a/summary.csv"), _read(tmp_path / "b/summary.csv")
+    assert [r[:-1] for r in sa] == [r[:-1] for r in sb]  # all but runtime_s
+    _bench(tmp_path / "c", "--seed", "5")
+    assert (tmp_path / "a/rms.csv").read_bytes() != (tmp_path / "c/rms.csv").read_bytes()
+
+
+def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = {"n": 0}
+    real = benchmark.METHODS["kf"]
+
+    def flaky(cfg, data):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("boom")
+        return real(cfg, data)
+
+    monkeypatch.setitem(benchmark.METHODS, "kf", flaky)
+    out = tmp_path / "out"
+    args = ["bench", str(CONFIGS / "paper.yaml"), "--trials", "5", "--out", str(out), "--quiet", *SHORT]
+    result = runner.invoke(app, args)
+    assert result.exit_code != 0
+    assert not out.exists()
+
+
+def test_unknown_method_is_a_clear_error(tmp_path: Path) -> None:
+    result = runner.invoke(
+        app, ["bench", str(CONFIGS / "paper.yaml"), "--methods", "kf,nope", "--out", str(tmp_path / "o")]
+    )
+    assert result.exit_code == 2
+    assert "nope" in result.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_sweep_runs_once_per_value(tmp_path: Path) -> None:
+    _bench(tmp_path, "--set", "sweep.values=[1, 10]", config="noise_mismatch.yaml")
+    assert (tmp_path / "attitude_sigma_arcsec=1/summary.csv").exists()
+    assert (tmp_path / "attitude_sigma_arcsec=10/summary.csv").exists()
+    rows = _read(tmp_path / "sweep_summary.csv")
+    assert rows[0][0] == "scenario.ads.attitude_sigma_arcsec"
+    att = {r[0]: float(r[3]) for r in rows[1:]}  # att_arcsec_final
+    assert att["10"] > 2 * att["1"]  # more ADS noise, worse attitude
