@@ -10,7 +10,7 @@ Update (Joseph form, valid for any gain)::
     x ← x + K ν,   P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ
 
 The Joseph product is evaluated multiplied out, ``P − K Uᵀ + (K S − U) Kᵀ`` with ``U = P Hᵀ``,
-on the upper triangle only, so the result is exactly symmetric.
+then symmetrised.
 
 ``S`` is factored by Cholesky; the update reports the normalised innovation squared
 ``νᵀ S⁻¹ ν`` and ``log det S`` so that callers can form the innovation log-likelihood
@@ -107,7 +107,7 @@ def make_workspace(
     return (
         np.empty((m, n)),
         np.empty((m, n)),
-        np.empty((n, m)),
+        np.empty((m, n)),
         np.empty((m, m)),
         np.empty((m, m)),
         np.empty(m),
@@ -150,9 +150,7 @@ def update_one(
         for j in range(m):
             v = 0.0
             for c in range(n):
-                hc = h[i, c]
-                if hc != 0.0:
-                    v += hc * ut[j, c]
+                v += h[i, c] * ut[j, c]
             hph[i, j] = v
     for i in range(m):
         for j in range(m):
@@ -197,23 +195,22 @@ def update_one(
     # Joseph form P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ, multiplied out:
     #   P⁺ = P − K Uᵀ + (K (H P Hᵀ + R) − U) Kᵀ,
     # which is the same matrix for any gain K (no optimality of K is used, so an error δK
-    # still enters only as δK S δKᵀ). P⁺ is symmetric: its upper triangle is formed, then
-    # mirrored.
-    for i in range(n):
-        for j in range(m):
-            v = -ut[j, i]
-            for c in range(m):
-                v += kt[c, i] * (r[c, j] + hph[c, j])
-            g[i, j] = v
+    # still enters only as δK S δKᵀ). The full square is formed (whole rows vectorise better
+    # than triangles at n = 15), then symmetrised.
+    for j in range(m):  # gᵀ = (K (R + H P Hᵀ) − U)ᵀ, row by row
+        for i in range(n):
+            g[j, i] = -ut[j, i]
+        for c in range(m):
+            coef = r[c, j] + hph[c, j]
+            for i in range(n):
+                g[j, i] += coef * kt[c, i]
     for i in range(n):
         for c in range(m):
             kic = kt[c, i]
-            gic = g[i, c]
-            for j in range(i, n):
+            gic = g[c, i]
+            for j in range(n):
                 p[i, j] += gic * kt[c, j] - kic * ut[c, j]
-    for i in range(n):
-        for j in range(i + 1, n):
-            p[j, i] = p[i, j]
+    symmetrize_inplace(p)
     return True, nis, logdet
 
 

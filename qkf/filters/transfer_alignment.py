@@ -120,7 +120,11 @@ class TransferAlignmentKF:
         self.params = params
         self.n_trials = n_trials
         self._d = np.ascontiguousarray(params.p0_sigma, dtype=float)
-        self._gl_s, self._gl_w = gauss_legendre(params.quadrature_nodes)
+        k = params.quadrature_nodes
+        self._gl_s = np.zeros((k - 1, k))
+        self._gl_w = np.zeros((k - 1, k))
+        for n in range(2, k + 1):
+            self._gl_s[n - 2, :n], self._gl_w[n - 2, :n] = gauss_legendre(n)
         self.q_hat = np.zeros((n_trials, 4))
         self.q_hat[:, 3] = 1.0
         self.b_hat = np.zeros((n_trials, 3))
