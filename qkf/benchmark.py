@@ -22,7 +22,7 @@ from qkf.scenario import ScenarioData, n_epochs, simulate
 from qkf.states import DISPLAY_UNIT
 
 MethodFn = Callable[[Config, ScenarioData], tuple[np.ndarray, np.ndarray]]
-"""A method filters the trials of ``ScenarioData`` and returns ``(est (B, N, 16), diverged (B,))``."""
+"""A method filters the trials of ``ScenarioData``; returns ``(est (B, N, 16), diverged (B,))``."""
 
 
 def run_fixed_kappa(cfg: Config, data: ScenarioData, kappa: float) -> tuple[np.ndarray, np.ndarray]:

@@ -10,10 +10,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-_JIT = {"cache": True}
 
-
-@nb.njit(**_JIT)
+@nb.njit(cache=True)
 def quat_mul(p: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
     """Hamilton product ``p ⊗ q`` (scalar-last), so that R(p ⊗ q) = R(p) R(q)."""
     px, py, pz, pw = p[0], p[1], p[2], p[3]
@@ -24,7 +22,7 @@ def quat_mul(p: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
     out[3] = pw * qw - px * qx - py * qy - pz * qz
 
 
-@nb.njit(**_JIT)
+@nb.njit(cache=True)
 def quat_from_rotvec(phi: np.ndarray, out: np.ndarray) -> None:
     """Quaternion of ``Exp(φ)`` (scalar-last)."""
     theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
@@ -39,7 +37,7 @@ def quat_from_rotvec(phi: np.ndarray, out: np.ndarray) -> None:
     out[3] = np.cos(0.5 * theta)
 
 
-@nb.njit(**_JIT)
+@nb.njit(cache=True)
 def rotvec_from_quat(q: np.ndarray, out: np.ndarray) -> None:
     """``Log`` of a unit quaternion (scalar-last) as a rotation vector, angle in [0, π]."""
     x, y, z, w = q[0], q[1], q[2], q[3]
@@ -52,7 +50,7 @@ def rotvec_from_quat(q: np.ndarray, out: np.ndarray) -> None:
     out[2] = k * z
 
 
-@nb.njit(**_JIT)
+@nb.njit(cache=True)
 def normalize(q: np.ndarray) -> None:
     """Scale a quaternion to unit norm, in place."""
     n = np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
@@ -60,9 +58,9 @@ def normalize(q: np.ndarray) -> None:
         q[i] /= n
 
 
-@nb.njit(**_JIT)
+@nb.njit(cache=True)
 def cumulative_rotation(q0: np.ndarray, rotvecs: np.ndarray) -> np.ndarray:
-    """Quaternions (n+1, 4) of ``C_0 = q0``, ``C_{k+1} = C_k Exp(φ_k)`` for rotation vectors (n, 3)."""
+    """Quaternions (n+1, 4) of ``C_0 = q0``, ``C_{k+1} = C_k Exp(φ_k)``; φ (n, 3) in rad."""
     n = rotvecs.shape[0]
     out = np.empty((n + 1, 4))
     out[0] = q0

@@ -101,7 +101,7 @@ class ScenarioData:
 
 def n_epochs(sc: Scenario) -> int:
     """Number of epochs ``N = round(duration / Δt)``."""
-    return int(round(sc.duration_s / sc.dt_s))
+    return round(sc.duration_s / sc.dt_s)
 
 
 def orbit_rate(altitude_km: float) -> float:

@@ -20,7 +20,17 @@ SHORT = ["--set", "scenario.duration_s=400", "--set", "run.chunk_trials=3"]
 
 
 def _bench(out: Path, *extra: str, config: str = "paper.yaml") -> None:
-    args = ["bench", str(CONFIGS / config), "--trials", "5", "--seed", "4", "--out", str(out), "--quiet"]
+    args = [
+        "bench",
+        str(CONFIGS / config),
+        "--trials",
+        "5",
+        "--seed",
+        "4",
+        "--out",
+        str(out),
+        "--quiet",
+    ]
     result = runner.invoke(app, [*args, *SHORT, *extra])
     assert result.exit_code == 0, result.output + str(result.exception)
 
@@ -33,7 +43,14 @@ def _read(path: Path) -> list[list[str]]:
 def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     _bench(tmp_path)
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"rms.csv", "summary.csv", "summary.md", "crlb.csv", "rms_groups.png", "rms_states.png"} <= names
+    assert {
+        "rms.csv",
+        "summary.csv",
+        "summary.md",
+        "crlb.csv",
+        "rms_groups.png",
+        "rms_states.png",
+    } <= names
     rms = _read(tmp_path / "rms.csv")
     assert tuple(rms[0]) == ("method", "t_s", *STATE_COLUMNS)
     assert len(rms) == 1 + 400 and {r[0] for r in rms[1:]} == {"kf"}
@@ -45,7 +62,9 @@ def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     per_epoch = np.array([r[2:] for r in rms[1:]], dtype=float)
     ms_att = np.mean(per_epoch[:, 0:3] ** 2, axis=1)
     np.testing.assert_allclose(float(row["att_arcsec_avg"]), np.sqrt(ms_att.mean()), rtol=1e-12)
-    np.testing.assert_allclose(float(row["att_arcsec_final"]), np.sqrt(ms_att[320:].mean()), rtol=1e-12)
+    np.testing.assert_allclose(
+        float(row["att_arcsec_final"]), np.sqrt(ms_att[320:].mean()), rtol=1e-12
+    )
     md = (tmp_path / "summary.md").read_text()
     assert "| kf | 5 |" in md and "CRLB" in md and "arcsec" in md
     assert (tmp_path / "rms_groups.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -74,7 +93,16 @@ def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.Monkey
 
     monkeypatch.setitem(benchmark.METHODS, "kf", flaky)
     out = tmp_path / "out"
-    args = ["bench", str(CONFIGS / "paper.yaml"), "--trials", "5", "--out", str(out), "--quiet", *SHORT]
+    args = [
+        "bench",
+        str(CONFIGS / "paper.yaml"),
+        "--trials",
+        "5",
+        "--out",
+        str(out),
+        "--quiet",
+        *SHORT,
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code != 0
     assert not out.exists()
@@ -82,7 +110,15 @@ def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.Monkey
 
 def test_unknown_method_is_a_clear_error(tmp_path: Path) -> None:
     result = runner.invoke(
-        app, ["bench", str(CONFIGS / "paper.yaml"), "--methods", "kf,nope", "--out", str(tmp_path / "o")]
+        app,
+        [
+            "bench",
+            str(CONFIGS / "paper.yaml"),
+            "--methods",
+            "kf,nope",
+            "--out",
+            str(tmp_path / "o"),
+        ],
     )
     assert result.exit_code == 2
     assert "nope" in result.stderr

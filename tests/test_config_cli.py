@@ -80,12 +80,20 @@ def test_set_overrides_and_their_errors(tmp_path: Path) -> None:
     assert cfg.scenario.maneuvers[1].rate_deg_s == 2.0
     with pytest.raises(ConfigError, match=r"filter\.qq0: unknown key"):
         load_config(CONFIGS / "paper.yaml", ["filter.qq0=1"])
-    with pytest.raises(ConfigError, match="expected dotted.key=value"):
+    with pytest.raises(ConfigError, match=r"expected dotted\.key=value"):
         load_config(CONFIGS / "paper.yaml", ["filter.qp0"])
     with pytest.raises(ConfigError, match="not an index"):
         load_config(CONFIGS / "paper.yaml", ["scenario.maneuvers.7.axis=x"])
     result = runner.invoke(
-        app, ["crlb", str(CONFIGS / "paper.yaml"), "--out", str(tmp_path / "c.csv"), "--set", "filter.qp0=-1"]
+        app,
+        [
+            "crlb",
+            str(CONFIGS / "paper.yaml"),
+            "--out",
+            str(tmp_path / "c.csv"),
+            "--set",
+            "filter.qp0=-1",
+        ],
     )
     assert result.exit_code == 2
     assert "filter.qp0" in result.stderr
@@ -104,7 +112,15 @@ def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:
 def test_crlb_command_writes_the_spec_format(tmp_path: Path) -> None:
     out = tmp_path / "crlb.csv"
     result = runner.invoke(
-        app, ["crlb", str(CONFIGS / "paper.yaml"), "--out", str(out), "--set", "scenario.duration_s=500"]
+        app,
+        [
+            "crlb",
+            str(CONFIGS / "paper.yaml"),
+            "--out",
+            str(out),
+            "--set",
+            "scenario.duration_s=500",
+        ],
     )
     assert result.exit_code == 0, result.output
     with out.open() as f:

@@ -10,8 +10,8 @@ from scipy import stats
 
 from qkf.crlb import crlb
 from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.metrics import state_errors
 from qkf.metrics import nees as nees_fn
+from qkf.metrics import state_errors
 from qkf.scenario import simulate
 from tests.conftest import cfg_with
 

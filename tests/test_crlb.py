@@ -69,7 +69,9 @@ def test_information_form_of_the_spec_agrees_for_attitude_matching() -> None:
 
 @pytest.mark.parametrize("matching", ["attitude", "attitude_rate"])
 def test_bound_equals_filter_covariance_when_the_model_is_the_truth(matching: str) -> None:
-    cfg = cfg_with("scenario.randomize_truth=true", "filter.qp0=1e-20", f"filter.matching={matching}")
+    cfg = cfg_with(
+        "scenario.randomize_truth=true", "filter.qp0=1e-20", f"filter.matching={matching}"
+    )
     data = simulate(cfg, 5, 4)
     kf = TransferAlignmentKF(FilterParams.from_config(cfg), 4)
     kf.initialize(data.ads_q[:, 0])

@@ -63,6 +63,8 @@ def test_update_rejects_non_finite_and_indefinite_input() -> None:
 
 def test_bad_layout_is_a_clear_error() -> None:
     with pytest.raises(ValueError, match="C-contiguous float64"):
-        kalman.predict(np.zeros((2, 3), dtype=np.float32), np.zeros((2, 3, 3)), np.eye(3), np.eye(3))
+        kalman.predict(
+            np.zeros((2, 3), dtype=np.float32), np.zeros((2, 3, 3)), np.eye(3), np.eye(3)
+        )
     with pytest.raises(ValueError, match="does not match"):
         kalman.predict(np.zeros((2, 3)), np.zeros((2, 4, 4)), np.eye(3), np.eye(3))

@@ -65,7 +65,12 @@ def test_rotation_helpers_match_scipy() -> None:
     np.testing.assert_allclose(a[1:], np.sin(t) / t, rtol=1e-12)
     np.testing.assert_allclose(b[4:], (1 - np.cos(t[3:])) / t[3:] ** 2, rtol=1e-12)
     # c(θ) = (θ − sin θ)/θ³ by mpmath-free high precision: series to many terms
-    ref = np.array([sum((-1) ** k * x ** (2 * k) / np.prod(np.arange(1, 2 * k + 4)) for k in range(12)) for x in t])
+    ref = np.array(
+        [
+            sum((-1) ** k * x ** (2 * k) / np.prod(np.arange(1, 2 * k + 4)) for k in range(12))
+            for x in t
+        ]
+    )
     np.testing.assert_allclose(c[1:], ref, rtol=1e-13)
     assert (a[0], b[0], c[0]) == (1.0, 0.5, pytest.approx(1 / 6))
     # left Jacobian = ∫₀¹ Exp(τφ) dτ by brute-force quadrature
@@ -79,7 +84,9 @@ def _true_rate(gyro: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.linalg.solve(np.eye(3) + calibration_matrix(p), gyro - b)
 
 
-def _propagated_error(x: np.ndarray, nom: dict[str, np.ndarray], gyro: np.ndarray, h: float) -> np.ndarray:
+def _propagated_error(
+    x: np.ndarray, nom: dict[str, np.ndarray], gyro: np.ndarray, h: float
+) -> np.ndarray:
     """Nonlinear error after propagating truth and estimate over ``h`` seconds (noise-free)."""
     c_hat, b_hat, p_hat = nom["c_hat"], nom["b_hat"], nom["p_hat"]
     c_true = c_hat @ Rotation.from_rotvec(x[0:3]).as_matrix()

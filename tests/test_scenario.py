@@ -61,7 +61,9 @@ def test_noise_statistics_match_the_config() -> None:
     # bias random walk increments
     db = np.diff(d.bias, axis=1).ravel()
     _check_normal(db, 1e-3 * units.DEG_PER_H_1_5 * np.sqrt(cfg.scenario.dt_s))
-    np.testing.assert_allclose(d.bias[:, 0], np.broadcast_to([1.0, -0.8, 0.6], (8, 3)) * units.DEG_PER_H)
+    np.testing.assert_allclose(
+        d.bias[:, 0], np.broadcast_to([1.0, -0.8, 0.6], (8, 3)) * units.DEG_PER_H
+    )
 
 
 def _check_normal(x: np.ndarray, sigma: float) -> None:
@@ -87,6 +89,8 @@ def test_thermal_presets_change_the_calibration() -> None:
 
 
 def test_measurement_gaps() -> None:
-    d = simulate(cfg_with("scenario.duration_s=300", "scenario.ads.gaps=[{start_s: 100, end_s: 150}]"), 0, 1)
+    d = simulate(
+        cfg_with("scenario.duration_s=300", "scenario.ads.gaps=[{start_s: 100, end_s: 150}]"), 0, 1
+    )
     assert not d.has_meas[100:150].any()
     assert d.has_meas[:100].all() and d.has_meas[150:].all()
