@@ -110,7 +110,10 @@ def bench_cmd(
         res = run_benchmark(run_cfg, names, trials=trials, seed=seed, progress=not quiet)
         write_bench(res, run_out)
         sweep_rows += [[value, *row] for row in summary_rows(res)]
-        out.print((run_out / "summary.md").read_text())
+        # raw markdown, unwrapped: a narrow terminal must not truncate the numbers
+        out.print(
+            (run_out / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False
+        )
         out.print(f"wrote {run_out}/")
     if cfg.sweep is not None:
         atomic_write_csv(
