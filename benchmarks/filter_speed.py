@@ -131,7 +131,7 @@ def main() -> None:
         f"{'peak MiB':>9}  speedup"
     )
     for b in batches:
-        rate, peak = batched_rate(cfg, b, args.block, repeats=3 if b <= 256 else 1)
+        rate, peak = batched_rate(cfg, b, args.block, repeats=3)
         ref = filterpy_rate(cfg, min(b, args.ref_trials))
         print(
             f"{b:>6} {rate:>16,.0f} {1e6 / rate:>14.2f} {ref:>17,.0f} {peak:>9.1f}  "

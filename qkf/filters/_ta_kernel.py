@@ -70,18 +70,23 @@ def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
 
 @nb.njit(cache=True, fastmath=_FASTMATH)
 def _transition(
-    w_hat: np.ndarray, s: float, wx: np.ndarray, wx2: np.ndarray, r: np.ndarray, g: np.ndarray
+    wx: np.ndarray, wx2: np.ndarray, rate: float, s: float, r: np.ndarray, g: np.ndarray
 ) -> None:
-    """R = Exp(−ω̂ s), Γ = s · J(−ω̂ s) into ``r`` and ``g``; ``wx``, ``wx2`` are scratch."""
-    phi = -s * w_hat
-    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    a, b, c = _rodrigues(theta)
-    _skew_sq(phi, wx, wx2)
+    """R = Exp(−ω̂ s), Γ = s · J(−ω̂ s) into ``r`` and ``g``.
+
+    ``wx`` = [−ω̂×] and ``wx2`` = [−ω̂×]² are computed once per step by the caller; ``rate`` =
+    |ω̂| in rad/s. With φ = −ω̂ s: [φ×] = s·wx and [φ×]² = s²·wx2.
+    """
+    a, b, c = _rodrigues(rate * s)
+    a1 = a * s
+    b2 = b * s * s
+    b1 = b * s
+    c2 = c * s * s
     for i in range(3):
         for j in range(3):
             e = 1.0 if i == j else 0.0
-            r[i, j] = e + a * wx[i, j] + b * wx2[i, j]
-            g[i, j] = s * (e + b * wx[i, j] + c * wx2[i, j])
+            r[i, j] = e + a1 * wx[i, j] + b2 * wx2[i, j]
+            g[i, j] = s * (e + b1 * wx[i, j] + c2 * wx2[i, j])
 
 
 @nb.njit(cache=True, fastmath=_FASTMATH)
@@ -278,6 +283,15 @@ def run_block(
     d_er = d * inv_er
     rv_scaled = sigma_v**2 / dt * inv_er**2
     rr_scaled = (sigma_r * inv_er) ** 2
+    # scale factors between SI and the scaled units, computed once (no divisions per step)
+    ratio = np.empty((3, 15))  # d_j / d_i
+    inv_dd = np.empty((3, 15))  # 1 / (d_i d_j)
+    for i in range(3):
+        for j in range(15):
+            ratio[i, j] = d[j] / d[i]
+            inv_dd[i, j] = 1.0 / (d[i] * d[j])
+    inv_d2 = 1.0 / (d * d)
+    corr_scale = sigma_v**2 / dt / (d[0:3] * e_r)
     max_nodes = gl_s.shape[0] + 1
     for bi in nb.prange(n_trials):
         p = pt[bi]
@@ -293,6 +307,7 @@ def run_block(
         vec = np.empty(3)
         wx = np.empty((3, 3))
         wx2 = np.empty((3, 3))
+        gm2 = np.empty((3, 3))
         rr = np.empty((3, 3))
         gg = np.empty((3, 3))
         phi_top = np.empty((3, 15))
@@ -370,7 +385,14 @@ def run_block(
                     scale_logdet = 6.0 * np.log(e_a)
                     if use_rate:
                         scale_logdet += 6.0 * np.log(e_r)
-                    rec_stats[bi, k, 0] = _nis_block(s_keep, nu, 0, s3, y3)
+                    # the leading 3×3 block of chol(S) is chol(S_aa): the attitude NIS is free
+                    chol = ws[4]
+                    for i in range(3):
+                        v = nu[i]
+                        for c in range(i):
+                            v -= chol[i, c] * y3[c]
+                        y3[i] = v / chol[i, i]
+                    rec_stats[bi, k, 0] = y3[0] ** 2 + y3[1] ** 2 + y3[2] ** 2
                     rec_stats[bi, k, 1] = _nis_block(s_keep, nu, 3, s3, y3) if use_rate else np.nan
                     rec_stats[bi, k, 2] = nis
                     rec_stats[bi, k, 3] = logdet + scale_logdet
@@ -418,7 +440,12 @@ def run_block(
                 q_hat[bi, i] = qtmp[i]
             q_p = kappa[bi, k] * qp0
             _a_omega(a, w, aom)
-            _transition(w, dt, wx, wx2, rr, gg)
+            for i in range(3):
+                vec[i] = -w[i]
+            _skew_sq(vec, wx, wx2)
+            w2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+            rate = np.sqrt(w2)
+            _transition(wx, wx2, rate, dt, rr, gg)
             if updated_rate:
                 # C̃ = E[w̃_θ ṽ_rᵀ] = Γ A (σ_v²/Δt) Aᵀ, scaled by d_θ and e_r
                 for i in range(3):
@@ -428,19 +455,19 @@ def run_block(
                             v += gg[i, c] * (
                                 a[j, 0] * a[c, 0] + a[j, 1] * a[c, 1] + a[j, 2] * a[c, 2]
                             )
-                        c_tr[i, j] = v * sigma_v**2 / dt / (d[i] * e_r)
+                        c_tr[i, j] = v * corr_scale[i]
             for i in range(3):
                 for j in range(3):
-                    phi_top[i, j] = rr[i, j] * d[j] / d[i]
+                    phi_top[i, j] = rr[i, j] * ratio[i, j]
                     v = 0.0
                     for c in range(3):
                         v += gg[i, c] * a[c, j]
-                    phi_top[i, 3 + j] = -v * d[3 + j] / d[i]
+                    phi_top[i, 3 + j] = -v * ratio[i, 3 + j]
                 for l in range(9):
                     v = 0.0
                     for c in range(3):
                         v += gg[i, c] * aom[c, l]
-                    phi_top[i, 6 + l] = -v * d[6 + l] / d[i]
+                    phi_top[i, 6 + l] = -v * ratio[i, 6 + l]
             # T = Φ̃_top P̃ (3×15)
             for i in range(3):
                 for j in range(15):
@@ -450,7 +477,6 @@ def run_block(
                     for j in range(15):
                         t_mat[i, j] += coef * p[c, j]
             # M1 = σ_v² A Aᵀ, M2 = (σ_u² + q_p |ω̂|²) A Aᵀ   (Ω Ωᵀ = |ω̂|² I)
-            w2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
             for i in range(3):
                 for j in range(3):
                     aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
@@ -458,11 +484,11 @@ def run_block(
                     m2[i, j] = (sigma_u**2 + q_p * w2) * aat
                     q_tt[i, j] = 0.0
                     g_int[i, j] = 0.0
-            n_nodes = _nodes_needed(np.sqrt(w2) * dt, max_nodes)
+            n_nodes = _nodes_needed(rate * dt, max_nodes)
             for nd in range(n_nodes):
                 s_j = gl_s[n_nodes - 2, nd] * dt
                 w_j = gl_w[n_nodes - 2, nd] * dt
-                _transition(w, s_j, wx, wx2, rr, gg)
+                _transition(wx, wx2, rate, s_j, rr, gg)
                 for i in range(3):
                     for j in range(3):
                         v1 = 0.0
@@ -471,12 +497,12 @@ def run_block(
                             v1 += rr[i, c] * m1[c, j]
                             v2 += gg[i, c] * m2[c, j]
                         tmp[i, j] = v1
-                        wx[i, j] = v2  # reuse scratch: Γ M2
+                        gm2[i, j] = v2
                 for i in range(3):
                     for j in range(3):
                         v = 0.0
                         for c in range(3):
-                            v += tmp[i, c] * rr[j, c] + wx[i, c] * gg[j, c]
+                            v += tmp[i, c] * rr[j, c] + gm2[i, c] * gg[j, c]
                         q_tt[i, j] += w_j * v
                         g_int[i, j] += w_j * gg[i, j]
             # P̃ ← Φ̃ P̃ Φ̃ᵀ: rows/cols 0..2 change, the rest stays
@@ -492,8 +518,9 @@ def run_block(
                     p[j, i] = t_mat[i, j]
             for i in range(3):
                 for j in range(3):
-                    p[i, j] = 0.5 * (tmp[i, j] + tmp[j, i]) + 0.5 * (q_tt[i, j] + q_tt[j, i]) / (
-                        d[i] * d[j]
+                    p[i, j] = (
+                        0.5 * (tmp[i, j] + tmp[j, i])
+                        + 0.5 * (q_tt[i, j] + q_tt[j, i]) * inv_dd[i, j]
                     )
             # + Q̃d off-diagonal attitude blocks and the random-walk diagonals
             for i in range(3):
@@ -501,20 +528,20 @@ def run_block(
                     v = 0.0
                     for c in range(3):
                         v += g_int[i, c] * a[c, j]
-                    qtb = -(sigma_u**2) * v / (d[i] * d[3 + j])
+                    qtb = -(sigma_u**2) * v * inv_dd[i, 3 + j]
                     p[i, 3 + j] += qtb
                     p[3 + j, i] += qtb
                 for l in range(9):
                     v = 0.0
                     for c in range(3):
                         v += g_int[i, c] * aom[c, l]
-                    qtp = -q_p * v / (d[i] * d[6 + l])
+                    qtp = -q_p * v * inv_dd[i, 6 + l]
                     p[i, 6 + l] += qtp
                     p[6 + l, i] += qtp
             for i in range(3):
-                p[3 + i, 3 + i] += sigma_u**2 * dt / d[3 + i] ** 2
+                p[3 + i, 3 + i] += sigma_u**2 * dt * inv_d2[3 + i]
             for i in range(9):
-                p[6 + i, 6 + i] += q_p * dt / d[6 + i] ** 2
+                p[6 + i, 6 + i] += q_p * dt * inv_d2[6 + i]
             if updated_rate:
                 _correlation_correction(
                     p, q_hat[bi], ws, c_tr, phi_top, w_corr, sinv_rr, qinc, qtmp, vec, d, tmp
