@@ -123,16 +123,22 @@ def discretize(
     sigma_u: float,
     q_p: np.ndarray | float,
     nodes: int = 5,
+    q_p_diag: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact discrete transition ``Φ`` and process noise ``Q_d`` (…, 15, 15) over ``dt`` (s).
 
+    ``q_p`` (1/s) is one density for all nine calibration terms, per leading element;
+    ``q_p_diag`` (…, 9), if given, sets each term's own density instead (``Qp = diag(q)``).
     ``Φ`` is closed form; ``Q_d`` uses ``nodes``-point Gauss–Legendre quadrature of its
     3×3 attitude integrals (see the module docstring).
     """
     w_hat = np.asarray(w_hat, dtype=float)
     a = np.asarray(a, dtype=float)
-    q_p = np.broadcast_to(np.asarray(q_p, dtype=float), w_hat.shape[:-1])
     lead = w_hat.shape[:-1]
+    if q_p_diag is None:
+        q_diag = np.broadcast_to(np.asarray(q_p, dtype=float)[..., None], (*lead, 9))
+    else:
+        q_diag = np.broadcast_to(np.asarray(q_p_diag, dtype=float), (*lead, 9))
     om = omega_matrix(w_hat)
     a_om = a @ om
     at = np.swapaxes(a, -1, -2)
@@ -144,7 +150,8 @@ def discretize(
     phi[..., THETA, CALIB] = -g_dt @ a_om
 
     m1 = sigma_v**2 * (a @ at)
-    m2 = a @ (sigma_u**2 * np.eye(3) + q_p[..., None, None] * (om @ np.swapaxes(om, -1, -2))) @ at
+    om_q = om * q_diag[..., None, :]
+    m2 = a @ (sigma_u**2 * np.eye(3) + om_q @ np.swapaxes(om, -1, -2)) @ at
     s_unit, w_unit = gauss_legendre(nodes)
     q_tt = np.zeros((*lead, 3, 3))
     gamma_int = np.zeros((*lead, 3, 3))
@@ -156,13 +163,13 @@ def discretize(
     qd = np.zeros((*lead, N_STATES, N_STATES))
     qd[..., THETA, THETA] = 0.5 * (q_tt + np.swapaxes(q_tt, -1, -2))
     q_tb = -(sigma_u**2) * (gamma_int @ a)
-    q_tp = -q_p[..., None, None] * (gamma_int @ a_om)
+    q_tp = -(gamma_int @ a_om) * q_diag[..., None, :]
     qd[..., THETA, BIAS] = q_tb
     qd[..., BIAS, THETA] = np.swapaxes(q_tb, -1, -2)
     qd[..., THETA, CALIB] = q_tp
     qd[..., CALIB, THETA] = np.swapaxes(q_tp, -1, -2)
     qd[..., BIAS, BIAS] = sigma_u**2 * dt * np.eye(3)
-    qd[..., CALIB, CALIB] = (q_p * dt)[..., None, None] * np.eye(9)
+    qd[..., CALIB, CALIB] = (q_diag * dt)[..., None, :] * np.eye(9)
     return phi, qd
 
 

@@ -48,12 +48,13 @@ def test_kernel_matches_reference_implementation(matching: str, correlation: boo
     params = FilterParams.from_config(cfg)
     kf = TransferAlignmentKF(params, 2)
     kf.initialize(data.ads_q[:, 0])
-    kappa = 3.0
+    # a different process-noise factor per trial, epoch and calibration term
+    kappa = np.random.default_rng(8).uniform(0.01, 100.0, (2, data.n_epochs, 9))
     rec = kf.step_data(data, 0, data.n_epochs, kappa=kappa, record_cov=True)
     assert rec.cov is not None
     for b in range(2):
         est, cov = run_reference(
-            params, data.gyro[b], data.ads_q[b], data.ads_rate[b], data.has_meas, kappa
+            params, data.gyro[b], data.ads_q[b], data.ads_rate[b], data.has_meas, kappa[b]
         )
         sigma = np.sqrt(np.einsum("nii->ni", cov))
         # attitude: compare rotations; b̂, p̂: compare in units of the filter's sigma

@@ -159,6 +159,19 @@ def test_discretisation_matches_van_loan(rate_deg_s: float, q_p: float) -> None:
     assert np.all(np.linalg.eigvalsh(qd / np.outer(s, s)) > -1e-12)
 
 
+def test_per_term_process_noise_matches_van_loan() -> None:
+    rng = np.random.default_rng(6)
+    w = np.array([0.3, -0.8, 0.5]) * units.DEG_PER_S
+    a = np.linalg.inv(np.eye(3) + calibration_matrix(rng.normal(0, 1e-3, 9)))
+    q = 10.0 ** rng.uniform(-16, -10, 9)
+    _, qd = discretize(w, a, 1.0, SIGMA_V, SIGMA_U, 0.0, q_p_diag=q)
+    gqg = process_noise_density(a, SIGMA_V, SIGMA_U, 0.0)
+    gqg[6:, 6:] = np.diag(q)
+    _, qd_vl = discretize_van_loan(error_dynamics(w, a), gqg, 1.0)
+    s = np.sqrt(np.diag(qd_vl))
+    np.testing.assert_allclose(qd / np.outer(s, s), qd_vl / np.outer(s, s), atol=1e-10)
+
+
 def test_discretisation_is_batched_over_leading_axes() -> None:
     rng = np.random.default_rng(4)
     w = rng.normal(0, 0.02, (4, 2, 3))

@@ -252,7 +252,7 @@ def run_block(
     ads_q: np.ndarray,  # (B, n, 4)
     ads_rate: np.ndarray,  # (B, n, 3) rad/s
     has_meas: np.ndarray,  # (n,) bool
-    kappa: np.ndarray,  # (B, n)
+    kappa: np.ndarray,  # (B, n, 9): q_p of each calibration component = κ · q_p0
     dt: float,
     sigma_v: float,
     sigma_u: float,
@@ -308,6 +308,8 @@ def run_block(
         wx = np.empty((3, 3))
         wx2 = np.empty((3, 3))
         gm2 = np.empty((3, 3))
+        q_c = np.empty(9)
+        dq = np.empty(3)
         rr = np.empty((3, 3))
         gg = np.empty((3, 3))
         phi_top = np.empty((3, 15))
@@ -438,7 +440,8 @@ def run_block(
             _normalize(qtmp)
             for i in range(4):
                 q_hat[bi, i] = qtmp[i]
-            q_p = kappa[bi, k] * qp0
+            for l in range(9):
+                q_c[l] = kappa[bi, k, l] * qp0
             _a_omega(a, w, aom)
             for i in range(3):
                 vec[i] = -w[i]
@@ -476,12 +479,21 @@ def run_block(
                     coef = phi_top[i, c]
                     for j in range(15):
                         t_mat[i, j] += coef * p[c, j]
-            # M1 = σ_v² A Aᵀ, M2 = (σ_u² + q_p |ω̂|²) A Aᵀ   (Ω Ωᵀ = |ω̂|² I)
+            # M1 = σ_v² A Aᵀ, M2 = A (σ_u² I + Ω diag(q) Ωᵀ) Aᵀ; Ω diag(q) Ωᵀ is diagonal
+            # because each column of Ω has a single non-zero
+            for r_ in range(3):
+                dq[r_] = sigma_u**2
+            for l in range(9):
+                dq[_OM_ROW[l]] += q_c[l] * w[_OM_COL[l]] ** 2
             for i in range(3):
                 for j in range(3):
                     aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
                     m1[i, j] = sigma_v**2 * aat
-                    m2[i, j] = (sigma_u**2 + q_p * w2) * aat
+                    m2[i, j] = (
+                        a[i, 0] * dq[0] * a[j, 0]
+                        + a[i, 1] * dq[1] * a[j, 1]
+                        + (a[i, 2] * dq[2] * a[j, 2])
+                    )
                     q_tt[i, j] = 0.0
                     g_int[i, j] = 0.0
             n_nodes = _nodes_needed(rate * dt, max_nodes)
@@ -535,13 +547,13 @@ def run_block(
                     v = 0.0
                     for c in range(3):
                         v += g_int[i, c] * aom[c, l]
-                    qtp = -q_p * v * inv_dd[i, 6 + l]
+                    qtp = -q_c[l] * v * inv_dd[i, 6 + l]
                     p[i, 6 + l] += qtp
                     p[6 + l, i] += qtp
             for i in range(3):
                 p[3 + i, 3 + i] += sigma_u**2 * dt * inv_d2[3 + i]
             for i in range(9):
-                p[6 + i, 6 + i] += q_p * dt * inv_d2[6 + i]
+                p[6 + i, 6 + i] += q_c[i] * dt * inv_d2[6 + i]
             if updated_rate:
                 _correlation_correction(
                     p, q_hat[bi], ws, c_tr, phi_top, w_corr, sinv_rr, qinc, qtmp, vec, d, tmp

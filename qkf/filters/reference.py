@@ -22,10 +22,10 @@ def run_reference(
     ads_q: np.ndarray,
     ads_rate: np.ndarray,
     has_meas: np.ndarray,
-    kappa: float = 1.0,
+    kappa: float | np.ndarray = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Filter one trial: inputs (n, 3), (n, 4), (n, 3), (n,). Returns the a-posteriori
-    estimates (n, 16) = [q̂, b̂, p̂] and covariances (n, 15, 15), SI."""
+    """Filter one trial: inputs (n, 3), (n, 4), (n, 3), (n,); ``kappa`` a scalar or (n, 9).
+    Returns the a-posteriori estimates (n, 16) = [q̂, b̂, p̂] and covariances (n, 15, 15), SI."""
     n = gyro.shape[0]
     m = params.n_meas
     kf = KalmanFilter(dim_x=15, dim_z=m)
@@ -34,7 +34,7 @@ def run_reference(
     c_hat = Rotation.from_quat(ads_q[0])
     b_hat = np.zeros(3)
     p_hat = np.zeros(9)
-    q_p = kappa * params.qp0
+    q_diag = np.broadcast_to(np.asarray(kappa, dtype=float), (n, 9)) * params.qp0
     est = np.empty((n, 16))
     cov = np.empty((n, 15, 15))
     correlated = params.use_rate and params.rate_noise_correlation
@@ -61,7 +61,14 @@ def run_reference(
         est[k, 7:16] = p_hat
         cov[k] = kf.P
         phi, qd = discretize(
-            w, a, params.dt, params.sigma_v, params.sigma_u, q_p, params.quadrature_nodes
+            w,
+            a,
+            params.dt,
+            params.sigma_v,
+            params.sigma_u,
+            0.0,
+            params.quadrature_nodes,
+            q_p_diag=q_diag[k],
         )
         kf.predict(F=phi, Q=qd)
         c_hat = c_hat * Rotation.from_rotvec(w * params.dt)

@@ -169,7 +169,7 @@ class TransferAlignmentKF:
         """Run ``n`` epochs for every trial and return what happened.
 
         ``gyro``, ``ads_rate`` (B, n, 3) rad/s; ``ads_q`` (B, n, 4); ``has_meas`` (n,) bool;
-        ``kappa`` a scalar, (B,) or (B, n) process-noise factors (q_p = κ · q_p0).
+        ``kappa``: process-noise factors, ``q_p = κ · q_p0``, see :func:`expand_kappa`.
         """
         b = self.n_trials
         gyro = _block(gyro, b, 3, "gyro")
@@ -177,12 +177,7 @@ class TransferAlignmentKF:
         ads_q = _block(ads_q, b, 4, "ads_q", n)
         ads_rate = _block(ads_rate, b, 3, "ads_rate", n)
         has_meas = np.ascontiguousarray(np.broadcast_to(np.asarray(has_meas, dtype=bool), (n,)))
-        kap = np.asarray(kappa, dtype=float)
-        if kap.ndim == 1:
-            kap = kap[:, None]
-        kap = np.ascontiguousarray(np.broadcast_to(kap, (b, n)))
-        if not np.all(np.isfinite(kap)) or np.any(kap <= 0.0):
-            raise ValueError("kappa must be finite and positive")
+        kap = expand_kappa(kappa, b, n)
         rec = FilterRecord(
             est=np.empty((b, n, 16)),
             var=np.empty((b, n, 15)),
@@ -248,6 +243,28 @@ class TransferAlignmentKF:
             kappa,
             record_cov,
         )
+
+
+def expand_kappa(kappa: float | np.ndarray, n_trials: int, n_epochs: int) -> np.ndarray:
+    """Broadcast process-noise factors to (B, n, 9): one per trial, epoch and calibration term.
+
+    Accepts a scalar, (B,), (B, n) or (B, n, 9). Raises ``ValueError`` for anything else and for
+    non-finite or non-positive values.
+    """
+    kap = np.asarray(kappa, dtype=float)
+    if kap.ndim == 1:
+        kap = kap[:, None, None]
+    elif kap.ndim == 2:
+        kap = kap[:, :, None]
+    try:
+        out = np.ascontiguousarray(np.broadcast_to(kap, (n_trials, n_epochs, 9)))
+    except ValueError:
+        raise ValueError(
+            f"kappa of shape {np.shape(kappa)} does not fit (B={n_trials}, n={n_epochs}[, 9])"
+        ) from None
+    if not np.all(np.isfinite(out)) or np.any(out <= 0.0):
+        raise ValueError("kappa must be finite and positive")
+    return out
 
 
 def _block(arr: np.ndarray, b: int, width: int, name: str, n: int | None = None) -> np.ndarray:
