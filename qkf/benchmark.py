@@ -8,7 +8,6 @@ in memory and written only when the run has finished (atomically, see ``qkf.io``
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,29 +15,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from qkf.config import Config
 from qkf.crlb import CrlbResult, crlb
-from qkf.filters import FilterParams, TransferAlignmentKF
+from qkf.methods import METHODS, MethodOutput
+from qkf.methods.base import action_values
 from qkf.metrics import ErrorAccumulator, state_errors, summarize
-from qkf.scenario import ScenarioData, n_epochs, simulate
+from qkf.scenario import n_epochs, simulate
 from qkf.states import DISPLAY_UNIT
-
-MethodFn = Callable[[Config, ScenarioData], tuple[np.ndarray, np.ndarray]]
-"""A method filters the trials of ``ScenarioData``; returns ``(est (B, N, 16), diverged (B,))``."""
-
-
-def run_fixed_kappa(cfg: Config, data: ScenarioData, kappa: float) -> tuple[np.ndarray, np.ndarray]:
-    """The transfer-alignment KF with a constant process-noise factor ``κ``."""
-    kf = TransferAlignmentKF(FilterParams.from_config(cfg), data.n_trials)
-    kf.initialize(data.ads_q[:, 0])
-    rec = kf.step_data(data, 0, data.n_epochs, kappa=kappa)
-    return rec.est, kf.diverged.copy()
-
-
-def _kf(cfg: Config, data: ScenarioData) -> tuple[np.ndarray, np.ndarray]:
-    return run_fixed_kappa(cfg, data, cfg.run.kappa)
-
-
-METHODS: dict[str, MethodFn] = {"kf": _kf}
-"""Methods available to ``qkf bench --methods``."""
 
 
 @dataclass
@@ -49,6 +30,8 @@ class MethodResult:
     diverged: int
     runtime_s: float
     summary: dict[str, float] = field(default_factory=dict)  # display units
+    kappa: np.ndarray | None = None  # (trials, T) κ in use at the decision times
+    notes: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -59,10 +42,29 @@ class BenchResult:
     t: np.ndarray
     methods: list[MethodResult]
     bound: CrlbResult
+    kappa_t: np.ndarray  # (T,) s, the times at which κ traces are sampled
+
+
+def kappa_trace(cfg: Config, out: MethodOutput, n: int, period: int) -> np.ndarray | None:
+    """κ in use per trial at every ``period``-th epoch (B, T), for the plots and kappa.csv.
+
+    Per-term κ (Sage–Husa) is summarised by its geometric mean, a bank (MMAE) by the
+    probability-weighted geometric mean; fixed-κ methods return None.
+    """
+    idx = np.arange(0, n, period)
+    if "kappa_index" in out.extras:
+        return action_values(cfg)[out.extras["kappa_index"]]
+    if "kappa" in out.extras:
+        return np.exp(np.mean(np.log(out.extras["kappa"][:, idx]), axis=-1))
+    if "weights" in out.extras:
+        return np.exp(out.extras["weights"][:, idx] @ np.log(action_values(cfg)))
+    return None
 
 
 def parse_methods(spec: str | list[str]) -> list[str]:
-    """Split ``"kf,qkf"`` into known method names; raises ``ValueError`` for unknown ones."""
+    """Split ``"kf,qkf"`` (or ``"all"``) into method names; ``ValueError`` for unknown ones."""
+    if spec == "all":
+        return list(METHODS)
     names = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
     if not names:
         raise ValueError("no method given")
@@ -86,8 +88,11 @@ def run_benchmark(
         raise ValueError("trials must be at least 1")
     methods = parse_methods(methods)
     n = n_epochs(cfg.scenario)
+    period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
     acc = {m: ErrorAccumulator(n) for m in methods}
     runtime = dict.fromkeys(methods, 0.0)
+    kappas: dict[str, list[np.ndarray]] = {m: [] for m in methods}
+    notes: dict[str, dict[str, str]] = {m: {} for m in methods}
     chunk = cfg.run.chunk_trials
     with Progress(
         TextColumn("[bold]{task.description}"),
@@ -104,9 +109,13 @@ def run_benchmark(
             data = simulate(cfg, seed, ids)
             for m in methods:
                 t0 = time.perf_counter()
-                est, diverged = METHODS[m](cfg, data)
+                out = METHODS[m](cfg, data)
                 runtime[m] += time.perf_counter() - t0
-                acc[m].add(state_errors(est, data.q_true, data.bias, data.calib), diverged)
+                acc[m].add(state_errors(out.est, data.q_true, data.bias, data.calib), out.diverged)
+                trace = kappa_trace(cfg, out, n, period)
+                if trace is not None:
+                    kappas[m].append(trace)
+                notes[m].update(out.notes)
                 bar.advance(tasks[m], ids.size)
     results = []
     for m in methods:
@@ -119,6 +128,8 @@ def run_benchmark(
                 diverged=acc[m].diverged,
                 runtime_s=runtime[m],
                 summary=summarize(rms / DISPLAY_UNIT),
+                kappa=np.concatenate(kappas[m]) if kappas[m] else None,
+                notes=notes[m],
             )
         )
     return BenchResult(
@@ -128,4 +139,5 @@ def run_benchmark(
         t=np.arange(n) * cfg.scenario.dt_s,
         methods=results,
         bound=crlb(cfg),
+        kappa_t=np.arange(0, n, period) * cfg.scenario.dt_s,
     )

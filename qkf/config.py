@@ -146,6 +146,51 @@ class RunConfig(_Strict):
     chunk_trials: Annotated[int, Field(ge=1)] = 64
 
 
+class ActionSet(_Strict):
+    """The process-noise factors κ_i = 10^(log10_min + i · log10_step), i = 0 … count − 1."""
+
+    log10_min: float = -2.0
+    log10_step: PositiveFloat = 0.4
+    count: Annotated[int, Field(ge=2, le=101)] = 11
+
+    def values(self) -> list[float]:
+        return [10.0 ** (self.log10_min + i * self.log10_step) for i in range(self.count)]
+
+
+class SageHusaConfig(_Strict):
+    forgetting: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.97
+
+
+class QkfConfig(_Strict):
+    """Online Q-learning Kalman filter (SPEC §3)."""
+
+    period_s: PositiveFloat = 10.0
+    epsilon_start: Annotated[float, Field(ge=0.0, le=1.0)] = 0.2
+    epsilon_end: Annotated[float, Field(ge=0.0, le=1.0)] = 0.02
+    epsilon_decay_s: PositiveFloat = 900.0
+    alpha: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
+    gamma: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.9
+
+
+class MmaeConfig(_Strict):
+    weight_floor: Annotated[float, Field(ge=0.0, lt=0.1)] = 1e-6
+
+
+class TunedConfig(_Strict):
+    """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
+
+    trials: Annotated[int, Field(ge=1)] = 8
+    seed: Annotated[int, Field(ge=0)] = 1_000_003
+
+
+class AdaptiveConfig(_Strict):
+    actions: ActionSet = ActionSet()
+    sage_husa: SageHusaConfig = SageHusaConfig()
+    qkf: QkfConfig = QkfConfig()
+    mmae: MmaeConfig = MmaeConfig()
+    tuned: TunedConfig = TunedConfig()
+
+
 class Sweep(_Strict):
     """A study over one config value: the benchmark runs once per value."""
 
@@ -159,6 +204,7 @@ class Config(_Strict):
     scenario: Scenario = Scenario()
     filter: FilterConfig = FilterConfig()
     run: RunConfig = RunConfig()
+    adaptive: AdaptiveConfig = AdaptiveConfig()
     sweep: Sweep | None = None
 
 

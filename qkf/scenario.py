@@ -89,6 +89,7 @@ class ScenarioData:
     ads_rate: np.ndarray  # (B, N, 3) rad/s
     has_meas: np.ndarray  # (N,) bool
     trial_ids: np.ndarray  # (B,) the trial index each row was drawn for
+    seed: int = 0  # the run's seed: with trial_ids, what methods seed their own draws from
 
     @property
     def n_trials(self) -> int:
@@ -216,4 +217,5 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         ads_rate=omega[None] + nu_r,
         has_meas=measurement_mask(sc),
         trial_ids=ids,
+        seed=seed,
     )

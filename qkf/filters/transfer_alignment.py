@@ -103,9 +103,13 @@ class FilterRecord:
 
     @property
     def loglik(self) -> np.ndarray:
-        """Innovation log-likelihood ``ℓ = −½ (νᵀS⁻¹ν + log det S)`` per epoch; 0 without data."""
+        """Innovation log-likelihood ``ℓ = −½ (νᵀS⁻¹ν + log det S)`` per epoch (no 2π term).
+
+        0 at epochs without a measurement; −inf once the trial has diverged.
+        """
         ll = -0.5 * (self.nis + self.logdet_s)
-        return np.where(np.isnan(self.nis), 0.0, ll)
+        ll = np.where(np.isnan(self.nis), 0.0, ll)
+        return np.where(np.isfinite(self.est).all(axis=-1), ll, -np.inf)
 
 
 class TransferAlignmentKF:
@@ -156,6 +160,16 @@ class TransferAlignmentKF:
     def copy(self) -> TransferAlignmentKF:
         """An independent copy (state and covariance), e.g. for an explorative filter."""
         return copy.deepcopy(self)
+
+    def copy_state_from(self, other: TransferAlignmentKF) -> None:
+        """Overwrite this filter's estimates, covariance and divergence flags with ``other``'s."""
+        if other.n_trials != self.n_trials:
+            raise ValueError("filters of different batch sizes")
+        self.q_hat[:] = other.q_hat
+        self.b_hat[:] = other.b_hat
+        self.p_hat[:] = other.p_hat
+        self._pt[:] = other._pt
+        self.diverged[:] = other.diverged
 
     def step(
         self,

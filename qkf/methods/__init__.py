@@ -1,0 +1,30 @@
+"""Ways of choosing the process-noise factor κ of the transfer-alignment filter (SPEC §3).
+
+Every method filters all trials of a :class:`qkf.scenario.ScenarioData` at once and returns a
+:class:`MethodOutput`; ``qkf bench --methods`` picks them by the names in :data:`METHODS`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from qkf.config import Config
+from qkf.methods.base import MethodOutput
+from qkf.methods.fixed import run_kf, run_kf_tuned
+from qkf.methods.mmae import run_mmae
+from qkf.methods.qlearning import run_qkf
+from qkf.methods.sage_husa import run_sage_husa
+from qkf.scenario import ScenarioData
+
+MethodFn = Callable[[Config, ScenarioData], MethodOutput]
+
+METHODS: dict[str, MethodFn] = {
+    "kf": run_kf,
+    "kf-tuned": run_kf_tuned,
+    "sage-husa": run_sage_husa,
+    "qkf": run_qkf,
+    "mmae": run_mmae,
+}
+"""Methods available to ``qkf bench --methods``, in their default order."""
+
+__all__ = ["METHODS", "MethodFn", "MethodOutput"]

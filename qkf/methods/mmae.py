@@ -1,0 +1,93 @@
+r"""MMAE: a bank of parallel filters, one per κ of the action set (SPEC §3).
+
+Model probabilities follow the innovation likelihood of each filter::
+
+    log w_i,k = log w_i,k−1 + ℓ_i,k − log Σ_j exp(…),   ℓ = −½ (νᵀ S⁻¹ ν + log det S)
+
+with a floor on each weight (renormalised) so that no model is locked out for good. The output
+is the weighted estimate: ``b̂``, ``p̂`` as weighted means, the attitude as the weighted mean
+rotation vector about the most probable filter's attitude. The filters do not interact, so the
+whole bank runs as one batch of A × B filters, in blocks of epochs to bound memory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from qkf.config import Config
+from qkf.methods.base import MethodOutput, action_values, new_filter
+from qkf.scenario import ScenarioData
+
+BLOCK = 200
+
+
+def update_log_weights(log_w: np.ndarray, loglik: np.ndarray, floor: float) -> np.ndarray:
+    """One step of the Bayesian model-probability recursion over the last axis, with a floor.
+
+    A model with a non-finite likelihood (diverged) gets weight zero for good.
+    """
+    alive = np.isfinite(loglik) & np.isfinite(log_w)
+    lw = np.where(alive, log_w + np.where(alive, loglik, 0.0), -np.inf)
+    lw = lw - lw.max(axis=-1, keepdims=True)
+    w = np.exp(lw)
+    w /= w.sum(axis=-1, keepdims=True)
+    if floor > 0.0:
+        w = np.where(alive, np.maximum(w, floor), 0.0)
+        w /= w.sum(axis=-1, keepdims=True)
+    with np.errstate(divide="ignore"):
+        return np.log(w)
+
+
+def combine(est: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted estimate from a bank: ``est`` (B, A, n, 16), ``w`` (B, A, n) → (B, n, 16)."""
+    b, n_act, n, _ = est.shape
+    out = np.empty((b, n, 16))
+    out[..., 4:] = np.einsum("ban,banj->bnj", w, est[..., 4:])
+    best = w.argmax(axis=1)  # (B, n)
+    q_ref = np.take_along_axis(est[..., 0:4], best[:, None, :, None], axis=1)[:, 0]  # (B, n, 4)
+    ref = Rotation.from_quat(np.repeat(q_ref[:, None], n_act, axis=1).reshape(-1, 4))
+    rel = (ref.inv() * Rotation.from_quat(est[..., 0:4].reshape(-1, 4))).as_rotvec()
+    mean_rel = np.einsum("ban,banj->bnj", w, rel.reshape(b, n_act, n, 3))
+    out[..., 0:4] = (
+        (Rotation.from_quat(q_ref.reshape(-1, 4)) * Rotation.from_rotvec(mean_rel.reshape(-1, 3)))
+        .as_quat()
+        .reshape(b, n, 4)
+    )
+    return out
+
+
+def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
+    """The bank over all trials; logs the model probabilities per epoch (``weights``)."""
+    kappas = action_values(cfg)
+    n_act = kappas.size
+    b, n = data.n_trials, data.n_epochs
+    bank = new_filter(cfg, data, n_copies=n_act)  # row = trial * A + model
+    kappa_rows = np.tile(kappas, b)
+    floor = cfg.adaptive.mmae.weight_floor
+    log_w = np.full((b, n_act), -np.log(n_act))
+    est = np.empty((b, n, 16))
+    weights = np.empty((b, n, n_act))
+    for k0 in range(0, n, BLOCK):
+        k1 = min(n, k0 + BLOCK)
+        sl = slice(k0, k1)
+        rec = bank.step(
+            np.repeat(data.gyro[:, sl], n_act, axis=0),
+            np.repeat(data.ads_q[:, sl], n_act, axis=0),
+            np.repeat(data.ads_rate[:, sl], n_act, axis=0),
+            data.has_meas[sl],
+            kappa_rows,
+        )
+        ll = rec.loglik.reshape(b, n_act, k1 - k0)
+        w_block = np.empty((b, n_act, k1 - k0))
+        for k in range(k1 - k0):
+            log_w = update_log_weights(log_w, ll[:, :, k], floor)
+            w_block[:, :, k] = np.exp(log_w)
+        weights[:, sl] = np.moveaxis(w_block, 1, 2)
+        bank_est = rec.est.reshape(b, n_act, k1 - k0, 16).copy()
+        dead = ~np.isfinite(bank_est).all(axis=-1)  # diverged models: weight 0, neutral values
+        bank_est[dead] = 0.0
+        bank_est[dead, 3] = 1.0
+        est[:, sl] = combine(bank_est, w_block)
+    diverged = bank.diverged.reshape(b, n_act).all(axis=1)
+    return MethodOutput(est=est, diverged=diverged, extras={"weights": weights})
