@@ -26,7 +26,6 @@ from qkf.config import Config
 from qkf.methods.base import MethodOutput, action_values, method_rng, new_filter
 from qkf.scenario import ScenarioData
 
-
 DIVERGENCE_PENALTY = -1e9
 """Reward for a period in which the explorative filter diverged, per second."""
 
