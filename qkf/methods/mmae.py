@@ -89,5 +89,5 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
         bank_est[dead] = 0.0
         bank_est[dead, 3] = 1.0
         est[:, sl] = combine(bank_est, w_block)
-    diverged = bank.diverged.reshape(b, n_act).all(axis=1)
+    diverged = np.asarray(bank.diverged.reshape(b, n_act).all(axis=1))
     return MethodOutput(est=est, diverged=diverged, extras={"weights": weights})

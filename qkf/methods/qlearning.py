@@ -68,6 +68,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     starts = list(range(0, n, period))
     kappa_index = np.empty((b, len(starts)), dtype=np.int64)
     rewards = np.empty((b, len(starts)))
+    actions = np.empty((b, len(starts)), dtype=np.int64)
     for j, k0 in enumerate(starts):
         k1 = min(n, k0 + period)
         eps = epsilon_at(cfg, k0 * cfg.scenario.dt_s)
@@ -80,6 +81,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
                 a[i] = g.choice(np.flatnonzero(q_row == q_row.max()))
         explore.copy_state_from(main)
         kappa_index[:, j] = s
+        actions[:, j] = a
         rec_m = main.step_data(data, k0, k1, kappa=kappas[s])
         rec_e = explore.step_data(data, k0, k1, kappa=kappas[a])
         est[:, k0:k1] = rec_m.est
@@ -97,5 +99,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
             "kappa_index": kappa_index,
             "period_start_s": np.asarray(starts) * cfg.scenario.dt_s,
             "reward": rewards,
+            "action": actions,
+            "q_table": table,
         },
     )
