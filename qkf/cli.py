@@ -69,7 +69,10 @@ def _slug(value: object) -> str:
 @app.command("bench")
 def bench_cmd(
     config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
-    methods: Annotated[str, typer.Option(help="Comma-separated methods.")] = "kf",
+    methods: Annotated[
+        str,
+        typer.Option(help="Comma-separated methods, or 'all': kf, kf-tuned, sage-husa, qkf, mmae."),
+    ] = "all",
     trials: Annotated[
         int | None, typer.Option(help="Monte Carlo trials (config: run.trials).")
     ] = None,

@@ -9,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import numpy as np
 
 from qkf.benchmark import BenchResult
 from qkf.crlb import CrlbResult
@@ -75,6 +76,43 @@ def rms_states_png(res: BenchResult) -> bytes:
     return _figure_png(fig)
 
 
+def kappa_png(res: BenchResult) -> bytes | None:
+    """κ chosen over time by each adaptive method: median and 10–90 % band over trials."""
+    traced = [m for m in res.methods if m.kappa is not None]
+    if not traced:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for m in traced:
+        assert m.kappa is not None
+        lo, med, hi = np.percentile(m.kappa, [10, 50, 90], axis=0)
+        (line,) = ax.semilogy(res.kappa_t, med, lw=1.3, label=f"{m.name} (median)")
+        ax.fill_between(res.kappa_t, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+    acts = res.config.adaptive.actions.values()
+    ax.set_ylim(min(acts) / 1.5, max(acts) * 1.5)
+    for j in res.config.scenario.calibration_jumps:
+        ax.axvline(j.t_s, color="k", ls=":", lw=1)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("κ  (q_p = κ · q_p0)")
+    ax.set_title(f"{res.config.name}: process-noise factor in use (band: 10–90 % of trials)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _figure_png(fig)
+
+
+def kappa_rows(res: BenchResult) -> list[list[object]]:
+    """Long format: method, trial, t_s, kappa (the κ in use from t_s on)."""
+    rows: list[list[object]] = []
+    for m in res.methods:
+        if m.kappa is None:
+            continue
+        for trial, trace in enumerate(m.kappa):
+            rows += [
+                [m.name, trial, float(t), float(k)] for t, k in zip(res.kappa_t, trace, strict=True)
+            ]
+    return rows
+
+
 def summary_rows(res: BenchResult) -> list[list[object]]:
     return [
         [m.name, m.trials, *(m.summary[c] for c in SUMMARY_COLUMNS[2:-1]), round(m.runtime_s, 3)]
@@ -109,6 +147,9 @@ def summary_markdown(res: BenchResult) -> str:
         lines.append(f"| {m.name} | {m.trials} | " + " | ".join(vals) + f" | {m.runtime_s:.2f} |")
     vals = [f"{crlb_summary[c]:.4g}" for c in SUMMARY_COLUMNS[2:-1]]
     lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
+    notes = [f"- {m.name}: {note}" for m in res.methods for note in m.notes.values()]
+    if notes:
+        lines += ["", *notes]
     bad = [m for m in res.methods if m.diverged]
     if bad:
         lines += ["", "**Diverged trials:** " + ", ".join(f"{m.name}: {m.diverged}" for m in bad)]
@@ -133,6 +174,10 @@ def write_bench(res: BenchResult, out_dir: str | Path) -> list[Path]:
         "rms_groups.png": rms_groups_png(res),
         "rms_states.png": rms_states_png(res),
     }
+    kpng = kappa_png(res)
+    if kpng is not None:
+        files["kappa.png"] = kpng
+        files["kappa.csv"] = (("method", "trial", "t_s", "kappa"), kappa_rows(res))
     written = []
     for name, content in files.items():
         path = out / name

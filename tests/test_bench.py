@@ -53,9 +53,12 @@ def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     } <= names
     rms = _read(tmp_path / "rms.csv")
     assert tuple(rms[0]) == ("method", "t_s", *STATE_COLUMNS)
-    assert len(rms) == 1 + 400 and {r[0] for r in rms[1:]} == {"kf"}
+    methods = ["kf", "kf-tuned", "sage-husa", "qkf", "mmae"]  # the default: all of them
+    assert len(rms) == 1 + 5 * 400 and [r[0] for r in rms[1::400]] == methods
+    rms = [r for r in rms if r[0] in ("method", "kf")]
     summary = _read(tmp_path / "summary.csv")
     assert tuple(summary[0]) == SUMMARY_COLUMNS
+    assert [r[0] for r in summary[1:]] == methods
     row = dict(zip(summary[0], summary[1], strict=True))
     assert row["method"] == "kf" and row["trials"] == "5"
     # summary = RMS over the whole run / last 20 % of the per-epoch RMS, per group
@@ -67,6 +70,15 @@ def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     )
     md = (tmp_path / "summary.md").read_text()
     assert "| kf | 5 |" in md and "CRLB" in md and "arcsec" in md
+    assert "kf-tuned: κ =" in md
+    # the κ chosen by the adaptive methods, per trial, every decision period (10 s)
+    kappa = _read(tmp_path / "kappa.csv")
+    assert tuple(kappa[0]) == ("method", "trial", "t_s", "kappa")
+    assert {r[0] for r in kappa[1:]} == {"sage-husa", "qkf", "mmae"}
+    qkf_rows = [r for r in kappa[1:] if r[0] == "qkf"]
+    assert len(qkf_rows) == 5 * 40
+    assert {float(r[3]) for r in qkf_rows} <= {10 ** (-2 + 0.4 * i) for i in range(11)}
+    assert (tmp_path / "kappa.png").exists()
     assert (tmp_path / "rms_groups.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
@@ -74,11 +86,15 @@ def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
 def test_same_seed_same_numbers(tmp_path: Path) -> None:
     _bench(tmp_path / "a")
     _bench(tmp_path / "b")
+    assert (tmp_path / "a/kappa.csv").read_bytes() == (tmp_path / "b/kappa.csv").read_bytes()
     assert (tmp_path / "a/rms.csv").read_bytes() == (tmp_path / "b/rms.csv").read_bytes()
     sa, sb = _read(tmp_path / "a/summary.csv"), _read(tmp_path / "b/summary.csv")
     assert [r[:-1] for r in sa] == [r[:-1] for r in sb]  # all but runtime_s
-    _bench(tmp_path / "c", "--seed", "5")
-    assert (tmp_path / "a/rms.csv").read_bytes() != (tmp_path / "c/rms.csv").read_bytes()
+    _bench(tmp_path / "c", "--methods", "kf", "--seed", "5")
+    kf_rows = [
+        line for line in (tmp_path / "a/rms.csv").read_text().splitlines() if line.startswith("kf,")
+    ]
+    assert kf_rows != (tmp_path / "c/rms.csv").read_text().splitlines()[1:]
 
 
 def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -126,7 +142,9 @@ def test_unknown_method_is_a_clear_error(tmp_path: Path) -> None:
 
 
 def test_sweep_runs_once_per_value(tmp_path: Path) -> None:
-    _bench(tmp_path, "--set", "sweep.values=[1, 10]", config="noise_mismatch.yaml")
+    _bench(
+        tmp_path, "--methods", "kf", "--set", "sweep.values=[1, 10]", config="noise_mismatch.yaml"
+    )
     assert (tmp_path / "attitude_sigma_arcsec=1/summary.csv").exists()
     assert (tmp_path / "attitude_sigma_arcsec=10/summary.csv").exists()
     rows = _read(tmp_path / "sweep_summary.csv")
