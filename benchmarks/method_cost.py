@@ -1,0 +1,54 @@
+"""Cost of the adaptive methods per filter-step, relative to the fixed-Q KF, in one run.
+
+Run: ``.venv/bin/python benchmarks/method_cost.py [--trials 64] [--config configs/paper.yaml]``.
+
+Every method filters the same simulated trials; the time of each (best of ``--repeats``) is
+divided by trials × epochs and printed with its ratio to ``kf``. ``kf-tuned`` is timed after
+its one-off tuning (cached per process), so its ratio is the filtering alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from qkf.config import load_config
+from qkf.methods import METHODS
+from qkf.methods.fixed import tuned_kappa
+from qkf.scenario import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--config", default=str(ROOT / "configs" / "paper.yaml"))
+    ap.add_argument("--trials", type=int, default=64)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--set", action="append", default=[], help="config override key=value")
+    args = ap.parse_args()
+    cfg = load_config(args.config, args.set)
+    data = simulate(cfg, 0, args.trials)
+    tuned_kappa(cfg)  # tuning is a one-off cost, kept out of the per-step figures
+    steps = data.n_trials * data.n_epochs
+    print(f"config {cfg.name}: {data.n_trials} trials × {data.n_epochs} epochs")
+    cost: dict[str, float] = {}
+    for name, fn in METHODS.items():
+        fn(cfg, simulate(cfg, 0, 1))  # compile and warm up
+        best = np.inf
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            fn(cfg, data)
+            best = min(best, time.perf_counter() - t0)
+        cost[name] = best / steps
+    for name, c in cost.items():
+        print(
+            f"{name:10s} {c * 1e6:8.2f} us per filter-step   cost_ratio_vs_kf: {c / cost['kf']:.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
