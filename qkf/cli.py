@@ -125,6 +125,24 @@ def bench_cmd(
         out.print(f"wrote {out_dir / 'sweep_summary.csv'}")
 
 
+@app.command("study")
+def study_cmd(
+    study: Annotated[Path, typer.Argument(help="Study file (configs/studies/*.yaml).")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
+        "results/study"
+    ),
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Run the cases of a study and plot them together: case folders, study.csv, study.png."""
+    from qkf.study import run_study
+
+    try:
+        written = run_study(study, out_dir, progress=not quiet)
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+    out.print(f"wrote {len(written)} files under {out_dir}/ (study.csv, study.png)")
+
+
 def main() -> None:  # pragma: no cover - entry point
     app()
 

@@ -35,7 +35,7 @@ def write_crlb_csv(path: str | Path, result: CrlbResult) -> None:
     )
 
 
-def _figure_png(fig: plt.Figure) -> bytes:
+def figure_png(fig: plt.Figure) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)
     plt.close(fig)
@@ -58,7 +58,7 @@ def rms_groups_png(res: BenchResult) -> bytes:
     axes[0, 0].legend(loc="upper right", fontsize=8)
     fig.suptitle(f"{res.config.name}: RMS over {res.trials} trials (seed {res.seed})")
     fig.tight_layout()
-    return _figure_png(fig)
+    return figure_png(fig)
 
 
 def rms_states_png(res: BenchResult) -> bytes:
@@ -73,7 +73,7 @@ def rms_states_png(res: BenchResult) -> bytes:
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
-    return _figure_png(fig)
+    return figure_png(fig)
 
 
 def kappa_png(res: BenchResult) -> bytes | None:
@@ -97,7 +97,7 @@ def kappa_png(res: BenchResult) -> bytes | None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    return _figure_png(fig)
+    return figure_png(fig)
 
 
 def kappa_rows(res: BenchResult) -> list[list[object]]:
