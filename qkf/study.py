@@ -112,13 +112,13 @@ def run_study(path: str | Path, out_dir: str | Path, progress: bool = True) -> l
         pending.append((case, bound, res))
     # everything computed: now write
     written = []
-    for case, bound, res in pending:
+    for case, bound, result in pending:
         sub = out / _slug(case.label)
-        if res is None:
+        if result is None:
             write_crlb_csv(sub / "crlb.csv", bound)
             written.append(sub / "crlb.csv")
         else:
-            written += write_bench(res, sub)
+            written += write_bench(result, sub)
     atomic_write_csv(out / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
     atomic_write_bytes(out / "study.png", _study_png(study, curves, rows))
     return [*written, out / "study.csv", out / "study.png"]
