@@ -7,7 +7,11 @@ in memory and written only when the run has finished (atomically, see ``qkf.io``
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,16 +78,105 @@ def parse_methods(spec: str | list[str]) -> list[str]:
     return names
 
 
+@dataclass
+class ChunkResult:
+    """What one chunk of trials contributes, per method (summed in chunk order afterwards)."""
+
+    sum_sq: dict[str, np.ndarray]  # (N, 15) sums over the chunk's trials of squared errors
+    count: int
+    diverged: dict[str, int]
+    runtime_s: dict[str, float]
+    kappa: dict[str, np.ndarray | None]
+    notes: dict[str, dict[str, str]]
+
+
+def run_chunk(cfg: Config, methods: list[str], seed: int, ids: np.ndarray) -> ChunkResult:
+    """Simulate trials ``ids`` and run every method on them (the unit of work of a backend)."""
+    n = n_epochs(cfg.scenario)
+    period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+    data = simulate(cfg, seed, ids)
+    res = ChunkResult({}, ids.size, {}, {}, {}, {})
+    for m in methods:
+        t0 = time.perf_counter()
+        out = METHODS[m](cfg, data)
+        res.runtime_s[m] = time.perf_counter() - t0
+        err = state_errors(out.est, data.q_true, data.bias, data.calib)
+        res.sum_sq[m] = np.sum(err * err, axis=0)
+        res.diverged[m] = int(np.count_nonzero(out.diverged))
+        res.kappa[m] = kappa_trace(cfg, out, n, period)
+        res.notes[m] = dict(out.notes)
+    return res
+
+
+def _single_thread_worker() -> None:
+    # each process is one worker: numba's own threads would oversubscribe the cores
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _chunk_results(
+    cfg: Config, methods: list[str], seed: int, chunks: list[np.ndarray], backend: str, workers: int
+) -> Iterator[ChunkResult]:
+    """Chunk results in chunk order, whatever order the backend finishes them in."""
+    if backend == "local" and workers <= 1:
+        for ids in chunks:
+            yield run_chunk(cfg, methods, seed, ids)
+    elif backend == "local":
+        # spawn, not fork: the parent's numba threads (OpenMP) do not survive a fork
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=_single_thread_worker
+        ) as pool:
+            futures = [pool.submit(run_chunk, cfg, methods, seed, ids) for ids in chunks]
+            for fut in futures:
+                yield fut.result()
+    elif backend == "ray":
+        yield from _ray_chunk_results(cfg, methods, seed, chunks)
+    else:
+        raise ValueError(f"unknown backend {backend!r}: local or ray")
+
+
+def _ray_chunk_results(
+    cfg: Config, methods: list[str], seed: int, chunks: list[np.ndarray]
+) -> Iterator[ChunkResult]:
+    try:
+        import ray
+    except ImportError:  # pragma: no cover - depends on the extra
+        raise RuntimeError("the ray backend needs the extra: pip install -e '.[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        address = cfg.run.ray_address or os.environ.get("RAY_ADDRESS")
+        # no address: a local cluster on this machine
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1)(run_chunk)
+        refs = [task.remote(cfg, methods, seed, ids) for ids in chunks]
+        for ref in refs:
+            yield ray.get(ref)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
 def run_benchmark(
     cfg: Config,
     methods: list[str],
     trials: int | None = None,
     seed: int | None = None,
     progress: bool = True,
+    backend: str = "local",
+    workers: int | None = None,
 ) -> BenchResult:
-    """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario."""
+    """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario.
+
+    ``backend``: ``local`` (in this process when ``workers`` is 1, else a process pool) or
+    ``ray`` (one Ray task per chunk; ``run.ray_address`` or ``RAY_ADDRESS``, else a local
+    cluster). Chunks are combined in chunk order, so every backend gives the same numbers.
+    """
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
+    workers = cfg.run.workers if workers is None else workers
     if trials < 1:
         raise ValueError("trials must be at least 1")
     methods = parse_methods(methods)
@@ -94,6 +187,7 @@ def run_benchmark(
     kappas: dict[str, list[np.ndarray]] = {m: [] for m in methods}
     notes: dict[str, dict[str, str]] = {m: {} for m in methods}
     chunk = cfg.run.chunk_trials
+    chunks = [np.arange(lo, min(trials, lo + chunk)) for lo in range(0, trials, chunk)]
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -103,20 +197,16 @@ def run_benchmark(
         disable=not progress,
         transient=False,
     ) as bar:
-        tasks = {m: bar.add_task(m, total=trials) for m in methods}
-        for lo in range(0, trials, chunk):
-            ids = np.arange(lo, min(trials, lo + chunk))
-            data = simulate(cfg, seed, ids)
+        task = bar.add_task(f"{', '.join(methods)} ({backend})", total=trials)
+        for res in _chunk_results(cfg, methods, seed, chunks, backend, workers):
             for m in methods:
-                t0 = time.perf_counter()
-                out = METHODS[m](cfg, data)
-                runtime[m] += time.perf_counter() - t0
-                acc[m].add(state_errors(out.est, data.q_true, data.bias, data.calib), out.diverged)
-                trace = kappa_trace(cfg, out, n, period)
+                acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
+                runtime[m] += res.runtime_s[m]
+                trace = res.kappa[m]
                 if trace is not None:
                     kappas[m].append(trace)
-                notes[m].update(out.notes)
-                bar.advance(tasks[m], ids.size)
+                notes[m].update(res.notes[m])
+            bar.advance(task, res.count)
     results = []
     for m in methods:
         rms = acc[m].rms()

@@ -82,6 +82,12 @@ def bench_cmd(
     ),
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    backend: Annotated[
+        str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
+    ] = "local",
+    workers: Annotated[
+        int | None, typer.Option(help="local backend: worker processes (config: run.workers).")
+    ] = None,
 ) -> None:
     """Monte Carlo comparison of filters: rms.csv, summary.csv, summary.md, crlb.csv, plots."""
     from qkf.benchmark import parse_methods, run_benchmark
@@ -97,6 +103,10 @@ def bench_cmd(
         names = parse_methods(methods)
     except ValueError as exc:
         raise _fail(f"--methods: {exc}") from None
+    if backend not in ("local", "ray"):
+        raise _fail(f"--backend: {backend!r} is not local or ray")
+    if workers is not None and workers < 1:
+        raise _fail("--workers must be at least 1")
 
     if cfg.sweep is None:
         runs = [(None, cfg, out_dir)]
@@ -110,7 +120,15 @@ def bench_cmd(
     for value, run_cfg, run_out in runs:
         if value is not None:
             out.print(f"[bold]{cfg.sweep.key if cfg.sweep else ''} = {value}[/]")
-        res = run_benchmark(run_cfg, names, trials=trials, seed=seed, progress=not quiet)
+        res = run_benchmark(
+            run_cfg,
+            names,
+            trials=trials,
+            seed=seed,
+            progress=not quiet,
+            backend=backend,
+            workers=workers,
+        )
         write_bench(res, run_out)
         sweep_rows += [[value, *row] for row in summary_rows(res)]
         # raw markdown, unwrapped: a narrow terminal must not truncate the numbers

@@ -144,6 +144,8 @@ class RunConfig(_Strict):
     seed: Annotated[int, Field(ge=0)] = 0
     kappa: PositiveFloat = 1.0
     chunk_trials: Annotated[int, Field(ge=1)] = 64
+    workers: Annotated[int, Field(ge=1)] = 1  # local backend: processes (1 = this process)
+    ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
 
 
 class ActionSet(_Strict):

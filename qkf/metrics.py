@@ -90,6 +90,14 @@ class ErrorAccumulator:
         if diverged is not None:
             self.diverged += int(np.count_nonzero(diverged))
 
+    def add_sums(self, sum_sq: np.ndarray, count: int, diverged: int = 0) -> None:
+        """Add a chunk already reduced to its sum of squared errors (n_epochs, 15)."""
+        if sum_sq.shape[0] != self.n_epochs:
+            raise ValueError(f"expected {self.n_epochs} epochs, got {sum_sq.shape[0]}")
+        self.sum_sq = sum_sq.copy() if self.sum_sq is None else self.sum_sq + sum_sq
+        self.count += count
+        self.diverged += diverged
+
     def rms(self) -> np.ndarray:
         """RMS over trials (n_epochs, 15); NaN where any trial was non-finite."""
         if self.sum_sq is None or self.count == 0:
