@@ -161,6 +161,8 @@ class ActionSet(_Strict):
 
 class SageHusaConfig(_Strict):
     forgetting: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.97
+    adapt_r: bool = False  # also estimate the attitude measurement noise
+    r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
 
 
 class QkfConfig(_Strict):

@@ -166,3 +166,30 @@ def test_sage_husa_q_stays_finite_and_positive(preset: str) -> None:
     assert np.all(kappa >= lo * (1 - 1e-12)) and np.all(kappa <= hi * (1 + 1e-12))
     assert not out.diverged.any()
     assert np.all(np.isfinite(out.est))
+
+
+def test_attitude_noise_adaptation_step_by_hand() -> None:
+    from qkf.methods.sage_husa import adapt_attitude_noise
+
+    nu = np.array([[1.0, 2.0, 2.0]])  # |ν|² = 9
+    trace_s = np.array([3.0 * 0.5 + 6.0])  # H P Hᵀ has trace 6, R = 0.5 I
+    out = adapt_attitude_noise(np.array([0.5]), 0.25, nu, trace_s, r_min=0.01)
+    assert out[0] == pytest.approx(0.75 * 0.5 + 0.25 * (9.0 - 6.0) / 3.0)
+    assert adapt_attitude_noise(np.array([0.5]), 1.0, nu, np.array([40.0]), r_min=0.2)[0] == 0.2
+    assert adapt_attitude_noise(np.array([0.5]), 1.0, nu * np.nan, trace_s, 0.01)[0] == 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("true_arcsec", [1.0, 10.0])
+def test_sage_husa_learns_the_true_attitude_noise(true_arcsec: float) -> None:
+    from qkf import units
+
+    cfg = cfg_with(
+        f"scenario.ads.attitude_sigma_arcsec={true_arcsec}",
+        "filter.attitude_sigma_arcsec=3",
+        "adaptive.sage_husa.adapt_r=true",
+        "scenario.duration_s=1200",
+    )
+    out = run_sage_husa(cfg, simulate(cfg, 4, 8))
+    learned = out.extras["sigma_a"][:, -300:].mean() / units.ARCSEC
+    assert learned == pytest.approx(true_arcsec, rel=0.15)

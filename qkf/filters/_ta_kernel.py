@@ -257,7 +257,7 @@ def run_block(
     sigma_v: float,
     sigma_u: float,
     qp0: float,
-    sigma_a: float,
+    sigma_a: np.ndarray,  # (B,) attitude measurement sigma assumed per trial, rad
     sigma_r: float,
     use_rate: bool,
     correlated: bool,  # account for the gyro noise shared by z_r,k and the step k → k+1
@@ -269,16 +269,14 @@ def run_block(
     rec_cov: np.ndarray,  # (B, n or 0, 15, 15): P after the update, SI
     rec_dx: np.ndarray,  # (B, n, 15): correction applied at the update, SI
     rec_innov: np.ndarray,  # (B, n, 6): innovation, SI (NaN where absent)
-    rec_stats: np.ndarray,  # (B, n, 4): NIS attitude, NIS rate, total NIS, log det S
+    rec_stats: np.ndarray,  # (B, n, 5): NIS att., NIS rate, NIS, log det S, tr S_aa (SI)
     rec_rate: np.ndarray,  # (B, n, 3): ω̂ used for propagation, rad/s
 ) -> None:
     n_trials = q_hat.shape[0]
     n_ep = gyro.shape[1]
     m = 6 if use_rate else 3
     full_cov = rec_cov.shape[1] > 0
-    e_a = sigma_a
     e_r = np.sqrt(sigma_r**2 + sigma_v**2 / dt)
-    inv_ea = 1.0 / e_a
     inv_er = 1.0 / e_r
     d_er = d * inv_er
     rv_scaled = sigma_v**2 / dt * inv_er**2
@@ -295,6 +293,8 @@ def run_block(
     max_nodes = gl_s.shape[0] + 1
     for bi in nb.prange(n_trials):
         p = pt[bi]
+        e_a = sigma_a[bi]
+        inv_ea = 1.0 / e_a
         a = np.empty((3, 3))
         w = np.empty(3)
         aom = np.empty((3, 9))
@@ -335,7 +335,7 @@ def run_block(
                     rec_dx[bi, k, i] = np.nan
                 for i in range(6):
                     rec_innov[bi, k, i] = np.nan
-                for i in range(4):
+                for i in range(5):
                     rec_stats[bi, k, i] = np.nan
                 for i in range(3):
                     rec_rate[bi, k, i] = np.nan
@@ -349,10 +349,8 @@ def run_block(
                 x[i] = 0.0
             for i in range(6):
                 rec_innov[bi, k, i] = np.nan
-            rec_stats[bi, k, 0] = np.nan
-            rec_stats[bi, k, 1] = np.nan
-            rec_stats[bi, k, 2] = np.nan
-            rec_stats[bi, k, 3] = np.nan
+            for i in range(5):
+                rec_stats[bi, k, i] = np.nan
             if has_meas[k] and not bad:
                 qtmp[0] = -q_hat[bi, 0]
                 qtmp[1] = -q_hat[bi, 1]
@@ -398,6 +396,7 @@ def run_block(
                     rec_stats[bi, k, 1] = _nis_block(s_keep, nu, 3, s3, y3) if use_rate else np.nan
                     rec_stats[bi, k, 2] = nis
                     rec_stats[bi, k, 3] = logdet + scale_logdet
+                    rec_stats[bi, k, 4] = (s_keep[0, 0] + s_keep[1, 1] + s_keep[2, 2]) * e_a**2
                     # reset: Ĉ ← Ĉ Exp(δθ), b̂ += Δb, p̂ += Δp
                     for i in range(15):
                         x[i] *= d[i]

@@ -99,6 +99,7 @@ class FilterRecord:
     nis_rate: np.ndarray  # (B, n): z_rᵀ S_rr⁻¹ z_r (NaN without rate matching)
     nis: np.ndarray  # (B, n): νᵀ S⁻¹ ν over all rows
     logdet_s: np.ndarray  # (B, n): log det S, S in SI
+    trace_s_att: np.ndarray  # (B, n): trace of the attitude block of S, rad²
     rate: np.ndarray  # (B, n, 3): ω̂ used for propagation
 
     @property
@@ -135,6 +136,9 @@ class TransferAlignmentKF:
         self.p_hat = np.zeros((n_trials, 9))
         self._pt = np.broadcast_to(np.eye(15), (n_trials, 15, 15)).copy()
         self.diverged = np.zeros(n_trials, dtype=bool)
+        self.sigma_a = np.full(n_trials, params.sigma_a)
+        """Attitude measurement sigma (rad) the filter assumes, per trial; adaptive-R methods
+        change it between calls."""
 
     def initialize(self, ads_q0: np.ndarray) -> None:
         """Start from ``Ĉ_0`` = first ADS attitude (B, 4), ``b̂ = 0``, ``p̂ = 0``, ``P = P_0``."""
@@ -146,6 +150,7 @@ class TransferAlignmentKF:
         self.p_hat[:] = 0.0
         self._pt[:] = np.eye(15)
         self.diverged[:] = False
+        self.sigma_a[:] = self.params.sigma_a
 
     @property
     def P(self) -> np.ndarray:
@@ -170,6 +175,7 @@ class TransferAlignmentKF:
         self.p_hat[:] = other.p_hat
         self._pt[:] = other._pt
         self.diverged[:] = other.diverged
+        self.sigma_a[:] = other.sigma_a
 
     def step(
         self,
@@ -202,9 +208,10 @@ class TransferAlignmentKF:
             nis_rate=np.empty(0),
             nis=np.empty(0),
             logdet_s=np.empty(0),
+            trace_s_att=np.empty(0),
             rate=np.empty((b, n, 3)),
         )
-        stats = np.empty((b, n, 4))
+        stats = np.empty((b, n, 5))
         p = self.params
         _ta_kernel.run_block(
             self.q_hat,
@@ -221,7 +228,7 @@ class TransferAlignmentKF:
             p.sigma_v,
             p.sigma_u,
             p.qp0,
-            p.sigma_a,
+            np.ascontiguousarray(self.sigma_a, dtype=float),
             p.sigma_r,
             p.use_rate,
             p.rate_noise_correlation,
@@ -236,7 +243,9 @@ class TransferAlignmentKF:
             stats,
             rec.rate,
         )
-        rec.nis_att, rec.nis_rate, rec.nis, rec.logdet_s = (stats[..., i] for i in range(4))
+        rec.nis_att, rec.nis_rate, rec.nis, rec.logdet_s, rec.trace_s_att = (
+            stats[..., i] for i in range(5)
+        )
         return rec
 
     def step_data(

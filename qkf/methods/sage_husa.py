@@ -12,6 +12,15 @@ variance. Safeguards: only the diagonal is adapted, and ``Q̂`` is clipped to
 and finite. The filter's update and propagation of an epoch run in one compiled call, so the
 ``Q̂`` estimated at epoch k drives the propagation that starts at epoch k + 1 (a lag of one
 step against a smoothing window of ~1/(1 − b) steps).
+
+Optional R adaptation (``adaptive.sage_husa.adapt_r``), for the attitude measurement noise
+``R_a = σ_a² I``::
+
+    R̂_k = (1 − d_k) R̂_{k−1} + d_k (ν νᵀ − H P⁻ Hᵀ)
+
+applied to the mean of the diagonal of the attitude block (an isotropic ``R_a``), with the
+floor ``σ̂_a ≥ r_floor · σ_a`` standing for the eigenvalue floor; the rate-measurement noise
+stays as assumed.
 """
 
 from __future__ import annotations
@@ -43,8 +52,22 @@ def sage_husa_step(
     return np.clip((1.0 - d_k) * q_prev + d_k * observed, q_min, q_max)
 
 
+def adapt_attitude_noise(
+    r_prev: np.ndarray, d_k: float, innov_att: np.ndarray, trace_s_att: np.ndarray, r_min: float
+) -> np.ndarray:
+    """One Sage–Husa step for an isotropic ``R_a = r I`` (r in rad²); NaN innovations keep r.
+
+    ``innov_att`` (B, 3) is ν_a, ``trace_s_att`` (B,) the trace of ``S_aa = H P⁻ Hᵀ + r_prev I``.
+    """
+    hph = trace_s_att - 3.0 * r_prev
+    observed = (np.sum(innov_att**2, axis=-1) - hph) / 3.0
+    new = np.maximum((1.0 - d_k) * r_prev + d_k * observed, r_min)
+    return np.where(np.isfinite(new), new, r_prev)
+
+
 def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """Sage–Husa AKF, batched over trials; logs ``Q̂`` per epoch as κ = Q̂ / (q_p0 Δt)."""
+    """Sage–Husa AKF, batched over trials; logs ``Q̂`` per epoch as κ = Q̂ / (q_p0 Δt) and,
+    with R adaptation, the assumed attitude sigma (``sigma_a``, rad)."""
     kf = new_filter(cfg, data)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
@@ -55,7 +78,14 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
     var_prev = np.broadcast_to(kf.P[:, np.arange(6, 15), np.arange(6, 15)], (b, 9)).copy()
     est = np.empty((b, n, 16))
     kappa_log = np.empty((b, n, 9))
+    sh = cfg.adaptive.sage_husa
+    r_hat = kf.sigma_a**2
+    r_min = (sh.r_floor * kf.params.sigma_a) ** 2
+    d_r = forgetting_weights(sh.forgetting, int(np.count_nonzero(data.has_meas)) + 1)
+    n_upd = 0
+    sigma_log = np.empty((b, n))
     for k in range(n):
+        sigma_log[:, k] = kf.sigma_a
         kappa = q_hat / (qp0 * dt)
         kappa_log[:, k] = kappa
         rec = kf.step_data(data, k, k + 1, kappa=kappa[:, None, :])
@@ -65,4 +95,13 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
         # a diverged trial's NaNs stay in its own rows; keep the clip range for the others
         q_hat = np.where(np.isfinite(q_hat), q_hat, qp0 * dt)
         var_prev = var_post
-    return MethodOutput(est=est, diverged=kf.diverged.copy(), extras={"kappa": kappa_log})
+        if sh.adapt_r and data.has_meas[k]:
+            r_hat = adapt_attitude_noise(
+                r_hat, d_r[n_upd], rec.innov[:, 0, 0:3], rec.trace_s_att[:, 0], r_min
+            )
+            n_upd += 1
+            kf.sigma_a[:] = np.sqrt(r_hat)
+    extras: dict[str, np.ndarray] = {"kappa": kappa_log}
+    if sh.adapt_r:
+        extras["sigma_a"] = sigma_log
+    return MethodOutput(est=est, diverged=kf.diverged.copy(), extras=extras)
