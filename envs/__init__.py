@@ -1,5 +1,20 @@
-"""Gymnasium environments of qkf (SPEC §5), registered as ``qkf/...``.
+"""Gymnasium environments of qkf (SPEC §5), registered as ``qkf/...`` on import.
 
-The transfer-alignment environment wraps :class:`qkf.filters.TransferAlignmentKF`; it arrives
-with the Gymnasium issue. The package exists now so that the layout is stable.
+``qkf/TransferAlignment-v0`` wraps :class:`qkf.filters.TransferAlignmentKF`: the agent picks
+the process-noise factor κ every decision period.
 """
+
+from gymnasium.envs.registration import register, registry
+
+from envs.transfer_alignment import TransferAlignmentEnv
+
+ENV_ID = "qkf/TransferAlignment-v0"
+
+if ENV_ID not in registry:
+    register(
+        id=ENV_ID,
+        entry_point="envs.transfer_alignment:TransferAlignmentEnv",
+        max_episode_steps=360,
+    )
+
+__all__ = ["ENV_ID", "TransferAlignmentEnv"]

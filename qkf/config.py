@@ -163,6 +163,7 @@ class SageHusaConfig(_Strict):
     forgetting: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.97
     adapt_r: bool = False  # also estimate the attitude measurement noise
     r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
+    r_warmup_s: Annotated[float, Field(ge=0.0)] = 100.0  # adapt R only once P has settled
 
 
 class QkfConfig(_Strict):
