@@ -7,6 +7,7 @@ the process-noise factor κ every decision period.
 from gymnasium.envs.registration import register, registry
 
 from envs.transfer_alignment import TransferAlignmentEnv
+from envs.vector import TransferAlignmentVectorEnv
 
 ENV_ID = "qkf/TransferAlignment-v0"
 
@@ -14,7 +15,8 @@ if ENV_ID not in registry:
     register(
         id=ENV_ID,
         entry_point="envs.transfer_alignment:TransferAlignmentEnv",
+        vector_entry_point="envs.vector:TransferAlignmentVectorEnv",
         max_episode_steps=360,
     )
 
-__all__ = ["ENV_ID", "TransferAlignmentEnv"]
+__all__ = ["ENV_ID", "TransferAlignmentEnv", "TransferAlignmentVectorEnv"]

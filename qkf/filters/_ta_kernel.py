@@ -251,7 +251,7 @@ def run_block(
     gyro: np.ndarray,  # (B, n, 3) rad/s
     ads_q: np.ndarray,  # (B, n, 4)
     ads_rate: np.ndarray,  # (B, n, 3) rad/s
-    has_meas: np.ndarray,  # (n,) bool
+    has_meas: np.ndarray,  # (B, n) bool
     kappa: np.ndarray,  # (B, n, 9): q_p of each calibration component = κ · q_p0
     dt: float,
     sigma_v: float,
@@ -351,7 +351,7 @@ def run_block(
                 rec_innov[bi, k, i] = np.nan
             for i in range(5):
                 rec_stats[bi, k, i] = np.nan
-            if has_meas[k] and not bad:
+            if has_meas[bi, k] and not bad:
                 qtmp[0] = -q_hat[bi, 0]
                 qtmp[1] = -q_hat[bi, 1]
                 qtmp[2] = -q_hat[bi, 2]

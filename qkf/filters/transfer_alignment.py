@@ -166,6 +166,15 @@ class TransferAlignmentKF:
         """An independent copy (state and covariance), e.g. for an explorative filter."""
         return copy.deepcopy(self)
 
+    def load_trial(self, i: int, other: TransferAlignmentKF, j: int = 0) -> None:
+        """Overwrite trial ``i`` with trial ``j`` of ``other`` (estimates, covariance, flags)."""
+        self.q_hat[i] = other.q_hat[j]
+        self.b_hat[i] = other.b_hat[j]
+        self.p_hat[i] = other.p_hat[j]
+        self._pt[i] = other._pt[j]
+        self.diverged[i] = other.diverged[j]
+        self.sigma_a[i] = other.sigma_a[j]
+
     def copy_state_from(self, other: TransferAlignmentKF) -> None:
         """Overwrite this filter's estimates, covariance and divergence flags with ``other``'s."""
         if other.n_trials != self.n_trials:
@@ -188,7 +197,8 @@ class TransferAlignmentKF:
     ) -> FilterRecord:
         """Run ``n`` epochs for every trial and return what happened.
 
-        ``gyro``, ``ads_rate`` (B, n, 3) rad/s; ``ads_q`` (B, n, 4); ``has_meas`` (n,) bool;
+        ``gyro``, ``ads_rate`` (B, n, 3) rad/s; ``ads_q`` (B, n, 4); ``has_meas`` (n,) or
+        (B, n) bool;
         ``kappa``: process-noise factors, ``q_p = κ · q_p0``, see :func:`expand_kappa`.
         """
         b = self.n_trials
@@ -196,7 +206,7 @@ class TransferAlignmentKF:
         n = gyro.shape[1]
         ads_q = _block(ads_q, b, 4, "ads_q", n)
         ads_rate = _block(ads_rate, b, 3, "ads_rate", n)
-        has_meas = np.ascontiguousarray(np.broadcast_to(np.asarray(has_meas, dtype=bool), (n,)))
+        has_meas = np.ascontiguousarray(np.broadcast_to(np.asarray(has_meas, dtype=bool), (b, n)))
         kap = expand_kappa(kappa, b, n)
         rec = FilterRecord(
             est=np.empty((b, n, 16)),

@@ -1,0 +1,56 @@
+"""Environment throughput: the single env against the batched vector env, in one run.
+
+Run: ``.venv/bin/python benchmarks/env_speed.py``. Prints env-steps per second and the
+filter-steps per second they imply (one env step = one decision period of 10 filter epochs),
+and the ratio of each vector env to the single env (target: ≥ 10 at 256 envs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from envs import TransferAlignmentEnv, TransferAlignmentVectorEnv
+
+
+def rate(step, n_envs: int, seconds: float) -> float:  # type: ignore[no-untyped-def]
+    """Env-steps per second of ``step()`` over about ``seconds`` (after one warm-up call)."""
+    step()
+    calls, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        step()
+        calls += 1
+    return calls * n_envs / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sizes", default="64,256")
+    ap.add_argument("--seconds", type=float, default=3.0)
+    args = ap.parse_args()
+    env = TransferAlignmentEnv()
+    env.reset(seed=0)
+    period = env._core.period
+    rng = np.random.default_rng(0)
+
+    def single_step() -> None:
+        _, _, term, trunc, _ = env.step(int(rng.integers(11)))
+        if term or trunc:
+            env.reset()
+
+    base = rate(single_step, 1, args.seconds)
+    print(f"single env: {base:10,.0f} env-steps/s  {base * period:12,.0f} filter-steps/s")
+    for n in (int(s) for s in args.sizes.split(",")):
+        vec = TransferAlignmentVectorEnv(n)
+        vec.reset(seed=0)
+        r = rate(lambda v=vec, n=n: v.step(rng.integers(0, 11, n)), n, args.seconds)
+        print(
+            f"vector {n:4d}: {r:10,.0f} env-steps/s  {r * period:12,.0f} filter-steps/s  "
+            f"ratio_vs_single: {r / base:.1f}"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,173 @@
+"""Batched episodes of the transfer-alignment task: what the single and the vector environment
+share. N episodes run in one :class:`qkf.filters.TransferAlignmentKF` (plus its nominal κ = 1
+shadow for the likelihood reward); each episode keeps its own epoch counter, so episodes that
+end early restart independently of the others.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from qkf.config import Config
+from qkf.crlb import crlb
+from qkf.filters import FilterParams, TransferAlignmentKF
+from qkf.metrics import nees, state_errors
+from qkf.scenario import n_epochs, simulate
+from qkf.states import DISPLAY_UNIT
+
+OBS_SIZE = 9
+OBS_LIMIT = 100.0  # observations are clipped to ±this (they are of order one in practice)
+DIVERGENCE_REWARD = -1e3
+RewardKind = Literal["likelihood", "oracle", "nees"]
+
+
+@dataclass
+class StepOutput:
+    obs: np.ndarray  # (N, 9) float32
+    reward: np.ndarray  # (N,)
+    terminated: np.ndarray  # (N,) bool
+    truncated: np.ndarray  # (N,) bool
+    kappa: np.ndarray  # (N,)
+    errors: np.ndarray  # (N, 15) display units, at the end of the period
+    crlb: np.ndarray  # (N, 15) display units
+    t_s: np.ndarray  # (N,)
+
+
+class BatchedEpisodes:
+    """N synchronous episodes; ``reset(i, seed)`` starts episode i anew from ``seed``."""
+
+    def __init__(self, cfg: Config, n: int, reward: RewardKind) -> None:
+        self.cfg = cfg
+        self.n = n
+        self.reward_kind = reward
+        self.params = FilterParams.from_config(cfg)
+        self.kappas = np.asarray(cfg.adaptive.actions.values())
+        self.period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+        self.n_epochs = n_epochs(cfg.scenario)
+        self.bound = crlb(cfg).bound
+        ne = self.n_epochs
+        self.gyro = np.zeros((n, ne, 3))
+        self.ads_q = np.zeros((n, ne, 4))
+        self.ads_rate = np.zeros((n, ne, 3))
+        self.q_true = np.zeros((n, ne, 4))
+        self.bias = np.zeros((n, ne, 3))
+        self.calib = np.zeros((n, ne, 9))
+        self.has_meas = np.ones((n, ne), dtype=bool)
+        self.t = np.arange(ne) * cfg.scenario.dt_s
+        self.k = np.zeros(n, dtype=np.int64)
+        self.kappa_pos = np.zeros(n)
+        self.kf = TransferAlignmentKF(self.params, n)
+        self.nominal = TransferAlignmentKF(self.params, n)
+
+    def reset(self, i: int, seed: int) -> np.ndarray:
+        """Draw episode ``i`` from ``seed``; returns its first observation."""
+        d = simulate(self.cfg, seed, [0])
+        self.gyro[i], self.ads_q[i], self.ads_rate[i] = d.gyro[0], d.ads_q[0], d.ads_rate[0]
+        self.q_true[i], self.bias[i], self.calib[i] = d.q_true, d.bias[0], d.calib[0]
+        self.has_meas[i] = d.has_meas
+        one = TransferAlignmentKF(self.params, 1)
+        one.initialize(d.ads_q[:, 0])
+        self.kf.load_trial(i, one)
+        self.k[i] = 0
+        self.kappa_pos[i] = float(np.argmin(np.abs(np.log(self.kappas))) / (self.kappas.size - 1))
+        obs = np.zeros(OBS_SIZE, dtype=np.float32)
+        obs[8] = self.kappa_pos[i]
+        return obs
+
+    def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:
+        idx = np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_epochs - 1)
+        return np.take_along_axis(arr, idx.reshape(idx.shape + (1,) * (arr.ndim - 2)), axis=1)
+
+    def step(self, kappa: np.ndarray, kappa_pos: np.ndarray) -> StepOutput:
+        """Run one decision period in every episode with process-noise factors ``kappa`` (N,)."""
+        k0 = self.k.copy()
+        # Episodes are synchronous in length; a period that would run past the end is cut by
+        # masking its extra epochs out as measurement-free repeats of the last one.
+        valid = (k0[:, None] + np.arange(self.period)[None, :]) < self.n_epochs
+        self.nominal.copy_state_from(self.kf)
+        gyro, ads_q, ads_rate = (
+            self._window(a, k0) for a in (self.gyro, self.ads_q, self.ads_rate)
+        )
+        meas = self._window(self.has_meas, k0) & valid
+        want_cov = self.reward_kind == "nees"
+        rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=want_cov)
+        rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
+        self.k = np.minimum(k0 + self.period, self.n_epochs)
+        self.kappa_pos = kappa_pos
+        err = state_errors(
+            rec.est,
+            self._window(self.q_true, k0),
+            self._window(self.bias, k0),
+            self._window(self.calib, k0),
+        )
+        last = np.maximum(valid.sum(axis=1) - 1, 0)
+        rows = np.arange(self.n)
+        diverged = self.kf.diverged.copy()
+        steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has no valid epoch
+        ll = np.where(valid, rec.loglik, 0.0).sum(axis=1)
+        ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
+            dll = ll - ll_nom
+        bound = self.bound[np.minimum(k0[:, None] + np.arange(self.period), self.n_epochs - 1)]
+        if self.reward_kind == "likelihood":
+            reward = dll / (steps * self.cfg.scenario.dt_s)
+        elif self.reward_kind == "oracle":
+            ratio = np.linalg.norm(err[..., 6:15], axis=-1) / np.linalg.norm(
+                bound[..., 6:15], axis=-1
+            )
+            reward = -np.sum(np.where(valid, ratio, 0.0), axis=1) / steps
+        else:
+            assert rec.cov is not None
+            ne = nees(err, rec.cov)
+            reward = -np.abs(np.sum(np.where(valid, ne, 0.0), axis=1) / steps / 15.0 - 1.0)
+        reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)
+        obs = self._observe(rec, valid, last, dll, steps)
+        return StepOutput(
+            obs=obs,
+            reward=reward,
+            terminated=diverged,
+            truncated=~diverged & (self.k >= self.n_epochs),
+            kappa=np.asarray(kappa, dtype=float),
+            errors=err[rows, last] / DISPLAY_UNIT,
+            crlb=bound[rows, last] / DISPLAY_UNIT,
+            t_s=self.t[np.minimum(k0 + last, self.n_epochs - 1)],
+        )
+
+    def _observe(
+        self,
+        rec: Any,
+        valid: np.ndarray,
+        last: np.ndarray,
+        dll: np.ndarray,
+        steps: np.ndarray,
+    ) -> np.ndarray:
+        rows = np.arange(self.n)
+        p0 = self.params.p0_sigma
+        log_ratio = 0.5 * np.log10(rec.var[rows, last] / p0**2)
+        nis_att = _masked_mean(rec.nis_att, valid) / 3.0
+        nis_rate = _masked_mean(rec.nis_rate, valid) / 3.0
+        obs = np.stack(
+            [
+                log_ratio[:, 0:3].mean(axis=1),
+                log_ratio[:, 3:6].mean(axis=1),
+                log_ratio[:, 6:15].mean(axis=1),
+                nis_att,
+                nis_rate,
+                dll / (steps * self.params.n_meas),
+                self.k / self.n_epochs,
+                np.linalg.norm(rec.rate[rows, last], axis=1) / (np.pi / 180.0),
+                self.kappa_pos,
+            ],
+            axis=1,
+        )
+        obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+        return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
+
+
+def _masked_mean(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Row means over finite, valid entries; 0 for a row without any (no data, no rate rows)."""
+    ok = valid & np.isfinite(x)
+    return np.where(ok, x, 0.0).sum(axis=1) / np.maximum(ok.sum(axis=1), 1)

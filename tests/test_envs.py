@@ -1,0 +1,128 @@
+"""Gymnasium environments: API checkers, seeding, the vector env against single envs,
+bad actions and divergence."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import envs
+from envs import ENV_ID, TransferAlignmentEnv, TransferAlignmentVectorEnv
+
+SHORT = ["scenario.duration_s=400"]
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"action_type": "continuous"}, {"reward": "oracle"}, {"reward": "nees"}],
+    ids=["discrete", "continuous", "oracle", "nees"],
+)
+def test_env_checkers_pass_without_warnings(kwargs: dict[str, str]) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(gym.make(ENV_ID, overrides=SHORT, **kwargs).unwrapped)
+        sb3_check_env(TransferAlignmentEnv(overrides=SHORT, **kwargs), warn=True)
+
+
+def test_registration() -> None:
+    env = gym.make(ENV_ID, scenario="thermal_snap")
+    assert env.spec is not None and env.spec.max_episode_steps == 360
+    assert isinstance(env.unwrapped, TransferAlignmentEnv)
+    assert env.unwrapped.cfg.name == "thermal-snap"
+    assert env.action_space == gym.spaces.Discrete(11)
+    vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point")
+    assert isinstance(vec.unwrapped, TransferAlignmentVectorEnv)
+
+
+def _episode(env: TransferAlignmentEnv, seed: int, actions: list[int]) -> list[tuple]:
+    out = [env.reset(seed=seed)[0]]
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out.append((obs, r, term, trunc, info["errors"]))
+    return out
+
+
+def test_same_seed_same_episode() -> None:
+    actions = [5, 0, 10, 3] * 10
+    a = _episode(TransferAlignmentEnv(overrides=SHORT), 7, actions)
+    b = _episode(TransferAlignmentEnv(overrides=SHORT), 7, actions)
+    c = _episode(TransferAlignmentEnv(overrides=SHORT), 8, actions)
+    for x, y in zip(a[1:], b[1:], strict=True):
+        np.testing.assert_array_equal(x[0], y[0])
+        assert x[1] == y[1]
+        np.testing.assert_array_equal(x[4], y[4])
+    assert not np.array_equal(a[5][4], c[5][4])
+    # 40 periods of 10 s end the 400 s episode
+    assert a[-1][3] is True and not any(step[3] for step in a[1:-1])
+
+
+def test_vector_env_equals_single_envs_step_for_step() -> None:
+    n = 3
+    vec = TransferAlignmentVectorEnv(n, overrides=SHORT)
+    singles = [TransferAlignmentEnv(overrides=SHORT) for _ in range(n)]
+    obs, _ = vec.reset(seed=10)
+    np.testing.assert_array_equal(
+        obs, np.stack([e.reset(seed=10 + i)[0] for i, e in enumerate(singles)])
+    )
+    rng = np.random.default_rng(0)
+    for step in range(45):  # past the end: next-step autoreset included
+        a = rng.integers(0, 11, n)
+        o, r, _, tr, _ = vec.step(a)
+        ref = []
+        for i, e in enumerate(singles):
+            if step == 40:  # the singles ended on the previous step: reset as the vector env did
+                ref.append((e.reset()[0], 0.0, False, False))
+            else:
+                ref.append(e.step(int(a[i]))[:4])
+        np.testing.assert_array_equal(o, np.stack([x[0] for x in ref]), err_msg=f"step {step}")
+        np.testing.assert_array_equal(r, [x[1] for x in ref])
+        np.testing.assert_array_equal(tr, [x[3] for x in ref])
+
+
+@pytest.mark.parametrize("bad", [np.nan, 11, -1, 2.5, "x"])
+def test_invalid_discrete_action_raises(bad: object) -> None:
+    env = TransferAlignmentEnv(overrides=SHORT)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.step(bad)
+
+
+@pytest.mark.parametrize("bad", [np.array([np.nan]), np.array([1.5]), np.array([0.1, 0.2])])
+def test_invalid_continuous_action_raises(bad: np.ndarray) -> None:
+    env = TransferAlignmentEnv(action_type="continuous", overrides=SHORT)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="continuous action"):
+        env.step(bad)
+
+
+def test_continuous_action_maps_to_log_kappa() -> None:
+    env = TransferAlignmentEnv(action_type="continuous", overrides=SHORT)
+    env.reset(seed=0)
+    for u, kappa in [(-1.0, 0.01), (0.0, 1.0), (1.0, 100.0)]:
+        info = env.step(np.array([u], dtype=np.float32))[4]
+        assert info["kappa"] == pytest.approx(kappa)
+
+
+def test_divergence_ends_the_episode() -> None:
+    env = TransferAlignmentEnv(overrides=SHORT)
+    env.reset(seed=0)
+    env._core.gyro[0, 25] = np.nan  # a broken sensor sample in the third period
+    for _ in range(2):
+        assert env.step(5)[2] is False
+    obs, reward, terminated, truncated, info = env.step(5)
+    assert terminated and not truncated and info["diverged"]
+    assert np.all(np.isfinite(obs)) and reward < 0
+
+
+def test_step_before_reset_is_an_error() -> None:
+    with pytest.raises(RuntimeError, match="reset"):
+        TransferAlignmentEnv(overrides=SHORT).step(0)
+
+
+def test_module_exports() -> None:
+    assert envs.ENV_ID == ENV_ID
