@@ -161,6 +161,28 @@ def study_cmd(
     out.print(f"wrote {len(written)} files under {out_dir}/ (study.csv, study.png)")
 
 
+@app.command("train")
+def train_cmd(
+    config: Annotated[Path, typer.Argument(help="Training config (configs/train_*.yaml).")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
+        "results/train"
+    ),
+    seed: Annotated[int | None, typer.Option(help="Seed (config: seed).")] = None,
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Train the agent named in the config; saves model.zip / model.npz and config.yaml."""
+    from agents.training import load_train_config, train
+
+    sets = list(set_ or []) + ([f"seed={seed}"] if seed is not None else [])
+    try:
+        cfg = load_train_config(config, sets)
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+    path = train(cfg, out_dir, progress=not quiet)
+    out.print(f"wrote {path}")
+
+
 def main() -> None:  # pragma: no cover - entry point
     app()
 

@@ -1,0 +1,120 @@
+"""Agents: the tabular learner, the SB3 VecEnv adapter, a tiny SB3 training run, saved policies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from agents.common.vec_env import TransferAlignmentVecEnv
+from agents.tabular import TabularQAgent, train_tabular
+from agents.training import Policy, load_train_config, train
+from envs import TransferAlignmentEnv
+from qkf.cli import app
+from qkf.config import ConfigError
+from tests.conftest import CONFIGS
+
+SHORT = ["scenario.duration_s=200"]
+
+
+def test_vec_env_matches_single_env_and_autoresets() -> None:
+    vec = TransferAlignmentVecEnv(2, overrides=SHORT)
+    vec.seed(5)
+    obs = vec.reset()
+    singles = [TransferAlignmentEnv(overrides=SHORT) for _ in range(2)]
+    ref = np.stack([e.reset(seed=5 + i)[0] for i, e in enumerate(singles)])
+    np.testing.assert_array_equal(obs, ref)
+    for step in range(20):  # 20 periods of 10 s end the episode
+        o, r, done, infos = vec.step(np.array([3, 7]))
+        so = [e.step(a) for e, a in zip(singles, (3, 7), strict=True)]
+        np.testing.assert_array_equal(r, np.array([x[1] for x in so], dtype=np.float32))
+        if step < 19:
+            np.testing.assert_array_equal(o, np.stack([x[0] for x in so]))
+            assert not done.any()
+    assert done.all()
+    np.testing.assert_array_equal(infos[0]["terminal_observation"], so[0][0])
+    assert infos[0]["TimeLimit.truncated"] is True
+
+
+def test_tabular_agent_learns_deterministically_and_round_trips(tmp_path: Path) -> None:
+    def run() -> TabularQAgent:
+        agent = TabularQAgent(n_actions=11, seed=3)
+        env = TransferAlignmentVecEnv(4, overrides=SHORT)
+        env.seed(0)
+        returns = train_tabular(agent, env, episodes=8)
+        assert len(returns) == 8 and np.all(np.isfinite(returns))
+        return agent
+
+    a, b = run(), run()
+    np.testing.assert_array_equal(a.table, b.table)
+    assert np.count_nonzero(a.table) > 0
+    a.save(tmp_path / "q.npz")
+    c = TabularQAgent.load(tmp_path / "q.npz")
+    np.testing.assert_array_equal(c.table, a.table)
+    assert c.bins == a.bins and c.episodes == a.episodes == 8
+    obs = np.random.default_rng(0).normal(size=(50, 9)).astype(np.float32)
+    np.testing.assert_array_equal(c.act(obs), a.act(obs))
+    # the exploration stream continues where it stopped
+    np.testing.assert_array_equal(c.act(obs, deterministic=False), a.act(obs, deterministic=False))
+
+
+def test_tabular_update_by_hand() -> None:
+    agent = TabularQAgent(n_actions=3, bins={0: [0.0]}, alpha=0.5, gamma=0.9)
+    s_neg, s_pos = np.array([[-1.0] + [0.0] * 8]), np.array([[1.0] + [0.0] * 8])
+    agent.table[agent.state(s_pos)[0]] = [0.0, 2.0, 1.0]
+    agent.update(s_neg, np.array([1]), np.array([1.0]), s_pos, np.array([False]))
+    assert agent.table[agent.state(s_neg)[0], 1] == pytest.approx(0.5 * (1.0 + 0.9 * 2.0))
+    agent.update(s_neg, np.array([2]), np.array([1.0]), s_pos, np.array([True]))
+    assert agent.table[agent.state(s_neg)[0], 2] == pytest.approx(0.5)
+
+
+def test_tiny_ppo_training_saves_and_reloads(tmp_path: Path) -> None:
+    cfg = load_train_config(
+        CONFIGS / "train_ppo.yaml",
+        [
+            "total_steps=256",
+            "n_envs=4",
+            "overrides=[scenario.duration_s=200]",
+            "hyperparams={n_steps: 32, batch_size: 32, n_epochs: 1}",
+            "eval={episodes: 1, seed: 100000, every_steps: 128}",
+        ],
+    )
+    path = train(cfg, tmp_path, progress=False)
+    assert path.name == "model.zip" and (tmp_path / "config.yaml").exists()
+    assert list((tmp_path / "checkpoints").glob("model_*_steps.zip"))
+    assert list((tmp_path / "tb").iterdir())
+    obs = np.random.default_rng(1).normal(size=(20, 9)).astype(np.float32)
+    first = Policy(path).act(obs)
+    np.testing.assert_array_equal(Policy(path).act(obs), first)
+    assert first.shape == (20,) and set(first.tolist()) <= set(range(11))
+
+
+def test_train_config_errors() -> None:
+    with pytest.raises(ConfigError, match="sac needs continuous"):
+        load_train_config(CONFIGS / "train_sac.yaml", ["action_type=discrete"])
+    with pytest.raises(ConfigError, match="invalid training config"):
+        load_train_config(CONFIGS / "train_ppo.yaml", ["agent=nope"])
+
+
+def test_train_command_tabular(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        [
+            "train",
+            str(CONFIGS / "train_tabular.yaml"),
+            "--out",
+            str(tmp_path),
+            "--quiet",
+            "--set",
+            "episodes=4",
+            "--set",
+            "n_envs=4",
+            "--set",
+            "overrides=[scenario.duration_s=200]",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "model.npz").exists()
+    assert Policy(tmp_path / "model.npz").act(np.zeros((2, 9), np.float32)).shape == (2,)
