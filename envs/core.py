@@ -15,7 +15,7 @@ from qkf.config import Config
 from qkf.crlb import crlb
 from qkf.filters import FilterParams, TransferAlignmentKF
 from qkf.metrics import nees, state_errors
-from qkf.scenario import n_epochs, simulate
+from qkf.scenario import ScenarioData, n_epochs, simulate
 from qkf.states import DISPLAY_UNIT
 
 OBS_SIZE = 9
@@ -34,6 +34,8 @@ class StepOutput:
     errors: np.ndarray  # (N, 15) display units, at the end of the period
     crlb: np.ndarray  # (N, 15) display units
     t_s: np.ndarray  # (N,)
+    est: np.ndarray  # (N, period, 16) the filter's estimates over the period, SI
+    valid: np.ndarray  # (N, period) bool: epochs inside the episode
 
 
 class BatchedEpisodes:
@@ -75,6 +77,22 @@ class BatchedEpisodes:
         self.kappa_pos[i] = float(np.argmin(np.abs(np.log(self.kappas))) / (self.kappas.size - 1))
         obs = np.zeros(OBS_SIZE, dtype=np.float32)
         obs[8] = self.kappa_pos[i]
+        return obs
+
+    def load(self, data: ScenarioData) -> np.ndarray:
+        """Run the N episodes on given simulated data (N trials) instead of drawing them;
+        returns the first observations (N, 9)."""
+        if data.n_trials != self.n or data.n_epochs != self.n_epochs:
+            raise ValueError(f"data of {data.n_trials} trials × {data.n_epochs} epochs")
+        self.gyro[:], self.ads_q[:], self.ads_rate[:] = data.gyro, data.ads_q, data.ads_rate
+        self.q_true[:] = data.q_true
+        self.bias[:], self.calib[:] = data.bias, data.calib
+        self.has_meas[:] = data.has_meas
+        self.kf.initialize(data.ads_q[:, 0])
+        self.k[:] = 0
+        self.kappa_pos[:] = float(np.argmin(np.abs(np.log(self.kappas))) / (self.kappas.size - 1))
+        obs = np.zeros((self.n, OBS_SIZE), dtype=np.float32)
+        obs[:, 8] = self.kappa_pos
         return obs
 
     def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:
@@ -134,6 +152,8 @@ class BatchedEpisodes:
             errors=err[rows, last] / DISPLAY_UNIT,
             crlb=bound[rows, last] / DISPLAY_UNIT,
             t_s=self.t[np.minimum(k0 + last, self.n_epochs - 1)],
+            est=rec.est,
+            valid=valid,
         )
 
     def _observe(

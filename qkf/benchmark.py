@@ -13,13 +13,14 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from qkf.config import Config
 from qkf.crlb import CrlbResult, crlb
-from qkf.methods import METHODS, MethodOutput
+from qkf.methods import METHODS, MethodOutput, resolve_method
 from qkf.methods.base import action_values
 from qkf.metrics import ErrorAccumulator, state_errors, summarize
 from qkf.scenario import n_epochs, simulate
@@ -65,6 +66,10 @@ def kappa_trace(cfg: Config, out: MethodOutput, n: int, period: int) -> np.ndarr
     return None
 
 
+def _is_policy(name: str) -> bool:
+    return name.startswith("policy:") and Path(name[len("policy:") :]).is_file()
+
+
 def parse_methods(spec: str | list[str]) -> list[str]:
     """Split ``"kf,qkf"`` (or ``"all"``) into method names; ``ValueError`` for unknown ones."""
     if spec == "all":
@@ -72,7 +77,7 @@ def parse_methods(spec: str | list[str]) -> list[str]:
     names = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
     if not names:
         raise ValueError("no method given")
-    unknown = [m for m in names if m not in METHODS]
+    unknown = [m for m in names if m not in METHODS and not _is_policy(m)]
     if unknown:
         raise ValueError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
     return names
@@ -98,7 +103,7 @@ def run_chunk(cfg: Config, methods: list[str], seed: int, ids: np.ndarray) -> Ch
     res = ChunkResult({}, ids.size, {}, {}, {}, {})
     for m in methods:
         t0 = time.perf_counter()
-        out = METHODS[m](cfg, data)
+        out = resolve_method(m)(cfg, data)
         res.runtime_s[m] = time.perf_counter() - t0
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
         res.sum_sq[m] = np.sum(err * err, axis=0)

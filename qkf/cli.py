@@ -183,6 +183,40 @@ def train_cmd(
     out.print(f"wrote {path}")
 
 
+@app.command("evaluate")
+def evaluate_cmd(
+    model: Annotated[Path, typer.Argument(help="Saved agent: model.zip or model.npz.")],
+    scenario: Annotated[
+        str | None, typer.Option(help="Preset name or config path (default: the training one).")
+    ] = None,
+    trials: Annotated[int, typer.Option(help="Monte Carlo trials.")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the evaluation trials.")] = 12345,
+    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
+        "results/evaluate"
+    ),
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Filter Monte Carlo trials with the policy's κ; writes the SPEC §8 files."""
+    from agents.training import Policy
+    from envs.transfer_alignment import resolve_scenario
+    from qkf.benchmark import run_benchmark
+    from qkf.report import write_bench
+
+    if not model.is_file():
+        raise _fail(f"{model}: no such model file")
+    if trials < 1:
+        raise _fail("--trials must be at least 1")
+    try:
+        policy = Policy(model)
+        cfg = resolve_scenario(scenario or policy.cfg.scenario, list(set_ or []))
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+    res = run_benchmark(cfg, [f"policy:{model}"], trials=trials, seed=seed, progress=not quiet)
+    write_bench(res, out_dir)
+    out.print((out_dir / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+
+
 def main() -> None:  # pragma: no cover - entry point
     app()
 

@@ -118,3 +118,65 @@ def test_train_command_tabular(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert (tmp_path / "model.npz").exists()
     assert Policy(tmp_path / "model.npz").act(np.zeros((2, 9), np.float32)).shape == (2,)
+
+
+def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
+    runner = CliRunner()
+    sets = [
+        "--set",
+        "episodes=4",
+        "--set",
+        "n_envs=4",
+        "--set",
+        "overrides=[scenario.duration_s=200]",
+    ]
+    res = runner.invoke(
+        app,
+        [
+            "train",
+            str(CONFIGS / "train_tabular.yaml"),
+            "--out",
+            str(tmp_path / "m"),
+            "--quiet",
+            *sets,
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    model = tmp_path / "m" / "model.npz"
+    res = runner.invoke(
+        app,
+        [
+            "bench",
+            str(CONFIGS / "paper.yaml"),
+            "--methods",
+            f"kf,policy:{model}",
+            "--trials",
+            "3",
+            "--set",
+            "scenario.duration_s=200",
+            "--out",
+            str(tmp_path / "b"),
+            "--quiet",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    summary = (tmp_path / "b" / "summary.csv").read_text().splitlines()
+    assert summary[2].startswith(f"policy:{model},3,")
+    kappa = (tmp_path / "b" / "kappa.csv").read_text()
+    assert f"policy:{model}" in kappa
+    res = runner.invoke(
+        app,
+        [
+            "evaluate",
+            str(model),
+            "--trials",
+            "2",
+            "--set",
+            "scenario.duration_s=200",
+            "--out",
+            str(tmp_path / "e"),
+            "--quiet",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "e" / "rms.csv").exists()

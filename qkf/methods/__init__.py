@@ -12,6 +12,7 @@ from qkf.config import Config
 from qkf.methods.base import MethodOutput
 from qkf.methods.fixed import run_kf, run_kf_tuned
 from qkf.methods.mmae import run_mmae
+from qkf.methods.policy import PREFIX, run_policy
 from qkf.methods.qlearning import run_qkf
 from qkf.methods.sage_husa import run_sage_husa
 from qkf.scenario import ScenarioData
@@ -27,4 +28,13 @@ METHODS: dict[str, MethodFn] = {
 }
 """Methods available to ``qkf bench --methods``, in their default order."""
 
-__all__ = ["METHODS", "MethodFn", "MethodOutput"]
+
+def resolve_method(name: str) -> MethodFn:
+    """The method called ``name``: a key of :data:`METHODS` or ``policy:PATH``."""
+    if name.startswith(PREFIX):
+        path = name[len(PREFIX) :]
+        return lambda cfg, data: run_policy(cfg, data, path)
+    return METHODS[name]
+
+
+__all__ = ["METHODS", "MethodFn", "MethodOutput", "resolve_method"]
