@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 bench: $(STAMP)
-	$(BIN)/qkf bench configs/paper.yaml --methods kf --out results/paper
+	$(BIN)/qkf bench configs/paper.yaml --out results/paper
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
