@@ -32,7 +32,7 @@ def main() -> None:
     args = ap.parse_args()
     env = TransferAlignmentEnv()
     env.reset(seed=0)
-    period = env._core.period
+    period = env._driver.core.period
     rng = np.random.default_rng(0)
 
     def single_step() -> None:

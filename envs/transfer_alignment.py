@@ -33,8 +33,9 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
 
-from envs.core import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind
+from envs.core import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind, StepOutput
 from qkf.config import Config, load_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -92,6 +93,40 @@ class ActionMap:
         return float(10.0 ** (lo + u * (hi - lo))), u
 
 
+class Driver:
+    """What the environment front ends share: the config, the action map, the batched episodes
+    and one generator per episode (each episode's data is drawn from its own generator)."""
+
+    def __init__(
+        self,
+        n: int,
+        scenario: str | Path | Config,
+        action_type: str,
+        reward: str,
+        overrides: list[str] | None,
+    ) -> None:
+        if n < 1:
+            raise ValueError("num_envs must be at least 1")
+        if reward not in ("likelihood", "oracle", "nees"):
+            raise ValueError(f"reward must be likelihood, oracle or nees, not {reward!r}")
+        self.cfg = resolve_scenario(scenario, overrides)
+        self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
+        self.observation_space = spaces.Box(
+            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
+        )
+        self.core = BatchedEpisodes(self.cfg, n, reward)  # type: ignore[arg-type]
+        self.rngs = [seeding.np_random()[0] for _ in range(n)]
+
+    def reset_env(self, i: int) -> np.ndarray:
+        """Start episode ``i`` anew from its generator; its first observation."""
+        return self.core.reset(i, int(self.rngs[i].integers(2**63 - 1)))
+
+    def step(self, actions: Any) -> StepOutput:
+        """Map one action per episode to κ and run one decision period in all of them."""
+        mapped = [self.actions(a) for a in actions]
+        return self.core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))
+
+
 class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
     """Choose the filter's process-noise factor every decision period (see module docstring)."""
 
@@ -104,30 +139,27 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         reward: RewardKind = "likelihood",
         overrides: list[str] | None = None,
     ) -> None:
-        if reward not in ("likelihood", "oracle", "nees"):
-            raise ValueError(f"reward must be likelihood, oracle or nees, not {reward!r}")
-        self.cfg = resolve_scenario(scenario, overrides)
-        self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
+        self._driver = Driver(1, scenario, action_type, reward, overrides)
+        self.cfg = self._driver.cfg
+        self.actions = self._driver.actions
         self.action_space = self.actions.space
-        self.observation_space = spaces.Box(
-            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
-        )
-        self._core = BatchedEpisodes(self.cfg, 1, reward)
+        self.observation_space = self._driver.observation_space
         self._started = False
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        obs = self._core.reset(0, int(self.np_random.integers(2**63 - 1)))
+        self._driver.rngs[0] = self.np_random
+        obs = self._driver.reset_env(0)
         self._started = True
         return obs, {"kappa": 1.0, "diverged": False}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        kappa, pos = self.actions(action)
-        out = self._core.step(np.array([kappa]), np.array([pos]))
+        kappa, _ = self.actions(action)
+        out = self._driver.step([action])
         info = {
             "kappa": kappa,
             "diverged": bool(out.terminated[0]),

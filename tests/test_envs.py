@@ -111,7 +111,7 @@ def test_continuous_action_maps_to_log_kappa() -> None:
 def test_divergence_ends_the_episode() -> None:
     env = TransferAlignmentEnv(overrides=SHORT)
     env.reset(seed=0)
-    env._core.gyro[0, 25] = np.nan  # a broken sensor sample in the third period
+    env._driver.core.gyro[0, 25] = np.nan  # a broken sensor sample in the third period
     for _ in range(2):
         assert env.step(5)[2] is False
     obs, reward, terminated, truncated, info = env.step(5)

@@ -13,12 +13,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from envs.core import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind
-from envs.transfer_alignment import ActionMap, resolve_scenario
+from envs.core import RewardKind
+from envs.transfer_alignment import Driver
 from qkf.config import Config
 
 
@@ -33,25 +32,19 @@ class TransferAlignmentVecEnv(VecEnv):
         reward: RewardKind = "likelihood",
         overrides: list[str] | None = None,
     ) -> None:
-        cfg = resolve_scenario(scenario, overrides)
-        self.actions = ActionMap(np.asarray(cfg.adaptive.actions.values()), action_type)
-        obs_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32)
+        self._driver = Driver(num_envs, scenario, action_type, reward, overrides)
+        self.cfg = self._driver.cfg
+        self.actions = self._driver.actions
         self.render_mode = None
-        super().__init__(num_envs, obs_space, self.actions.space)
-        self.cfg = cfg
-        self._core = BatchedEpisodes(cfg, num_envs, reward)
-        self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
+        super().__init__(num_envs, self._driver.observation_space, self.actions.space)
         self._actions: np.ndarray | None = None
-
-    def _reset_env(self, i: int) -> np.ndarray:
-        return self._core.reset(i, int(self._rngs[i].integers(2**63 - 1)))
 
     def reset(self) -> np.ndarray:
         for i, s in enumerate(self._seeds):
             if s is not None:
-                self._rngs[i] = seeding.np_random(s)[0]
+                self._driver.rngs[i] = seeding.np_random(s)[0]
         self._reset_seeds()
-        return np.stack([self._reset_env(i) for i in range(self.num_envs)])
+        return np.stack([self._driver.reset_env(i) for i in range(self.num_envs)])
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -60,10 +53,7 @@ class TransferAlignmentVecEnv(VecEnv):
         if self._actions is None:
             raise RuntimeError("step_async must come before step_wait")
         acts = self._actions.reshape(self.num_envs, -1)
-        mapped = [
-            self.actions(a if self.actions.action_type == "continuous" else a[0]) for a in acts
-        ]
-        out = self._core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))
+        out = self._driver.step(acts if self.actions.action_type == "continuous" else acts[:, 0])
         obs = out.obs.copy()
         dones = out.terminated | out.truncated
         infos: list[dict[str, Any]] = []
@@ -73,7 +63,7 @@ class TransferAlignmentVecEnv(VecEnv):
                 info["terminal_observation"] = out.obs[i]
                 info["TimeLimit.truncated"] = bool(out.truncated[i])
                 info["diverged"] = bool(out.terminated[i])
-                obs[i] = self._reset_env(i)
+                obs[i] = self._driver.reset_env(i)
             infos.append(info)
         return obs, out.reward.astype(np.float32), dones, infos
 
