@@ -29,6 +29,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sizes", default="64,256")
     ap.add_argument("--seconds", type=float, default=3.0)
+    ap.add_argument("--ppo-steps", type=int, default=8192, help="0 skips the PPO measurement")
     args = ap.parse_args()
     env = TransferAlignmentEnv()
     env.reset(seed=0)
@@ -50,6 +51,27 @@ def main() -> None:
             f"vector {n:4d}: {r:10,.0f} env-steps/s  {r * period:12,.0f} filter-steps/s  "
             f"ratio_vs_single: {r / base:.1f}"
         )
+    if args.ppo_steps:
+        ppo_fps(args.ppo_steps)
+
+
+def ppo_fps(steps: int) -> None:
+    """PPO training throughput (env steps/s) on one env and on the batched vec env."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from agents.common.vec_env import TransferAlignmentVecEnv
+
+    torch.set_num_threads(1)
+    for name, env in (
+        ("PPO, 1 env (DummyVecEnv)", DummyVecEnv([TransferAlignmentEnv])),
+        ("PPO, 16 envs (batched VecEnv)", TransferAlignmentVecEnv(16)),
+    ):
+        model = PPO("MlpPolicy", env, n_steps=max(64, 2048 // env.num_envs), seed=0, device="cpu")
+        t0 = time.perf_counter()
+        model.learn(steps)
+        print(f"{name}: {steps / (time.perf_counter() - t0):8,.0f} env-steps/s")
 
 
 if __name__ == "__main__":
