@@ -80,16 +80,6 @@ class ErrorAccumulator:
     count: int = 0
     diverged: int = 0
 
-    def add(self, err: np.ndarray, diverged: np.ndarray | None = None) -> None:
-        """Add errors (B, n_epochs, 15) of a chunk of trials."""
-        if err.shape[1] != self.n_epochs:
-            raise ValueError(f"expected {self.n_epochs} epochs, got {err.shape[1]}")
-        sq = np.sum(err * err, axis=0)
-        self.sum_sq = sq if self.sum_sq is None else self.sum_sq + sq
-        self.count += err.shape[0]
-        if diverged is not None:
-            self.diverged += int(np.count_nonzero(diverged))
-
     def add_sums(self, sum_sq: np.ndarray, count: int, diverged: int = 0) -> None:
         """Add a chunk already reduced to its sum of squared errors (n_epochs, 15)."""
         if sum_sq.shape[0] != self.n_epochs:

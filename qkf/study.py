@@ -37,7 +37,7 @@ from qkf.crlb import CrlbResult, crlb
 from qkf.io import atomic_write_bytes, atomic_write_csv
 from qkf.metrics import group_rms, summarize
 from qkf.report import SUMMARY_COLUMNS, figure_png, summary_rows, write_bench, write_crlb_csv
-from qkf.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS
+from qkf.states import DISPLAY_UNIT, GROUP_TITLES
 
 
 class Case(BaseModel):
@@ -166,4 +166,4 @@ def _study_png(
     return figure_png(fig)
 
 
-__all__ = ["GROUPS", "Study", "load_study", "run_study"]
+__all__ = ["Study", "load_study", "run_study"]
