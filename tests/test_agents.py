@@ -180,3 +180,27 @@ def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
     )
     assert res.exit_code == 0, res.output
     assert (tmp_path / "e" / "rms.csv").exists()
+
+
+@pytest.mark.parametrize("name", ["train_a2c", "train_sac", "train_dqn", "train_ppo_continuous"])
+def test_every_shipped_sb3_config_trains_a_few_steps(name: str, tmp_path: Path) -> None:
+    cfg = load_train_config(
+        CONFIGS / f"{name}.yaml",
+        [
+            "total_steps=64",
+            "n_envs=2",
+            "overrides=[scenario.duration_s=100]",
+            "eval={episodes: 1, seed: 100000, every_steps: 64}",
+        ],
+    )
+    hyper = dict(cfg.hyperparams)
+    if cfg.agent in ("sac", "dqn"):
+        hyper.update(learning_starts=8, batch_size=8)
+    if cfg.agent == "ppo":
+        hyper.update(n_steps=16, batch_size=16)
+    if cfg.agent == "a2c":
+        hyper.update(n_steps=8)
+    cfg = cfg.model_copy(update={"hyperparams": hyper})
+    path = train(cfg, tmp_path, progress=False)
+    action = Policy(path).act(np.zeros((3, 9), np.float32))
+    assert action.shape[0] == 3
