@@ -119,7 +119,13 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True) -> Path:
     env = make_vec_env(cfg, cfg.n_envs, cfg.seed)
     if cfg.agent == "tabular":
         agent = TabularQAgent(n_actions=int(env.action_space.n), seed=cfg.seed, **cfg.tabular)  # type: ignore[attr-defined]
-        train_tabular(agent, env, cfg.episodes)
+        from rich.progress import Progress
+
+        with Progress(disable=not progress) as bar:
+            task = bar.add_task("tabular episodes", total=cfg.episodes)
+            train_tabular(
+                agent, env, cfg.episodes, on_episode=lambda n: bar.update(task, completed=n)
+            )
         agent.save(out / "model.npz")
         return out / "model.npz"
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback

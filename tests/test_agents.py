@@ -204,3 +204,23 @@ def test_every_shipped_sb3_config_trains_a_few_steps(name: str, tmp_path: Path) 
     path = train(cfg, tmp_path, progress=False)
     action = Policy(path).act(np.zeros((3, 9), np.float32))
     assert action.shape[0] == 3
+
+
+def test_sb3_training_resumes_from_the_last_checkpoint(tmp_path: Path) -> None:
+    sets = [
+        "n_envs=2",
+        "overrides=[scenario.duration_s=100]",
+        "hyperparams={n_steps: 16, batch_size: 16, n_epochs: 1}",
+        "eval={episodes: 1, seed: 100000, every_steps: 32}",
+    ]
+    train(load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=64"]), tmp_path, False)
+    first = sorted((tmp_path / "checkpoints").glob("*.zip"))
+    assert first
+    from stable_baselines3 import PPO
+
+    train(
+        load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=128"]), tmp_path, False
+    )
+    model = PPO.load(tmp_path / "model.zip", device="cpu")
+    assert model.num_timesteps == 128  # 64 from the checkpoint, 64 more: not 128 from scratch + 64
+    assert len(sorted((tmp_path / "checkpoints").glob("*.zip"))) > len(first)
