@@ -14,6 +14,7 @@ import numpy as np
 from qkf.config import Config
 from qkf.crlb import crlb
 from qkf.filters import FilterParams, TransferAlignmentKF
+from qkf.methods.base import decision_period, nominal_action
 from qkf.metrics import nees, state_errors
 from qkf.scenario import ScenarioData, n_epochs, simulate
 from qkf.states import DISPLAY_UNIT
@@ -47,7 +48,8 @@ class BatchedEpisodes:
         self.reward_kind = reward
         self.params = FilterParams.from_config(cfg)
         self.kappas = np.asarray(cfg.adaptive.actions.values())
-        self.period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+        self.period = decision_period(cfg)
+        self._start_pos = nominal_action(cfg) / (self.kappas.size - 1)
         self.n_epochs = n_epochs(cfg.scenario)
         self.bound = crlb(cfg).bound
         ne = self.n_epochs
@@ -73,11 +75,7 @@ class BatchedEpisodes:
         one = TransferAlignmentKF(self.params, 1)
         one.initialize(d.ads_q[:, 0])
         self.kf.load_trial(i, one)
-        self.k[i] = 0
-        self.kappa_pos[i] = float(np.argmin(np.abs(np.log(self.kappas))) / (self.kappas.size - 1))
-        obs = np.zeros(OBS_SIZE, dtype=np.float32)
-        obs[8] = self.kappa_pos[i]
-        return obs
+        return self._restart(np.array([i]))[0]
 
     def load(self, data: ScenarioData) -> np.ndarray:
         """Run the N episodes on given simulated data (N trials) instead of drawing them;
@@ -89,10 +87,15 @@ class BatchedEpisodes:
         self.bias[:], self.calib[:] = data.bias, data.calib
         self.has_meas[:] = data.has_meas
         self.kf.initialize(data.ads_q[:, 0])
-        self.k[:] = 0
-        self.kappa_pos[:] = float(np.argmin(np.abs(np.log(self.kappas))) / (self.kappas.size - 1))
-        obs = np.zeros((self.n, OBS_SIZE), dtype=np.float32)
-        obs[:, 8] = self.kappa_pos
+        return self._restart(np.arange(self.n))
+
+    def _restart(self, rows: np.ndarray) -> np.ndarray:
+        """Epoch counter and κ of episodes ``rows`` back to the start; their first observations
+        (zeros but for the κ in use)."""
+        self.k[rows] = 0
+        self.kappa_pos[rows] = self._start_pos
+        obs = np.zeros((rows.size, OBS_SIZE), dtype=np.float32)
+        obs[:, 8] = self._start_pos
         return obs
 
     def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from qkf.config import Config
 from qkf.crlb import CrlbResult, crlb
 from qkf.methods import METHODS, MethodOutput, resolve_method
-from qkf.methods.base import action_values
+from qkf.methods.base import action_values, decision_period
 from qkf.metrics import ErrorAccumulator, state_errors, summarize
 from qkf.scenario import n_epochs, simulate
 from qkf.states import DISPLAY_UNIT
@@ -98,7 +98,7 @@ class ChunkResult:
 def run_chunk(cfg: Config, methods: list[str], seed: int, ids: np.ndarray) -> ChunkResult:
     """Simulate trials ``ids`` and run every method on them (the unit of work of a backend)."""
     n = n_epochs(cfg.scenario)
-    period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+    period = decision_period(cfg)
     data = simulate(cfg, seed, ids)
     res = ChunkResult({}, ids.size, {}, {}, {}, {})
     for m in methods:
@@ -186,7 +186,7 @@ def run_benchmark(
         raise ValueError("trials must be at least 1")
     methods = parse_methods(methods)
     n = n_epochs(cfg.scenario)
-    period = max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+    period = decision_period(cfg)
     acc = {m: ErrorAccumulator(n) for m in methods}
     runtime = dict.fromkeys(methods, 0.0)
     kappas: dict[str, list[np.ndarray]] = {m: [] for m in methods}

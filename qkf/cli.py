@@ -5,7 +5,6 @@ Exit codes: 0 success, 2 bad input (config, option), 1 anything else.
 
 from __future__ import annotations
 
-import re
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -62,10 +61,6 @@ def crlb_cmd(
     out.print(f"wrote {out_file}")
 
 
-def _slug(value: object) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", str(value))
-
-
 @app.command("bench")
 def bench_cmd(
     config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
@@ -91,7 +86,7 @@ def bench_cmd(
 ) -> None:
     """Monte Carlo comparison of filters: rms.csv, summary.csv, summary.md, crlb.csv, plots."""
     from qkf.benchmark import parse_methods, run_benchmark
-    from qkf.io import atomic_write_csv
+    from qkf.io import atomic_write_csv, slug
     from qkf.report import SUMMARY_COLUMNS, summary_rows, write_bench
 
     cfg = _load(config, set_)
@@ -115,7 +110,7 @@ def bench_cmd(
         for value in cfg.sweep.values:
             sub = _load(config, [*(set_ or []), f"{cfg.sweep.key}={value}"])
             leaf = cfg.sweep.key.split(".")[-1]
-            runs.append((value, sub, out_dir / f"{leaf}={_slug(value)}"))
+            runs.append((value, sub, out_dir / f"{leaf}={slug(value)}"))
     sweep_rows = []
     for value, run_cfg, run_out in runs:
         if value is not None:

@@ -19,7 +19,6 @@ A case may name its own ``base``. Output: one folder per case (the files of ``qk
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -34,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from qkf.benchmark import BenchResult, run_benchmark
 from qkf.config import Config, ConfigError, load_config
 from qkf.crlb import CrlbResult, crlb
-from qkf.io import atomic_write_bytes, atomic_write_csv
+from qkf.io import atomic_write_bytes, atomic_write_csv, slug
 from qkf.metrics import group_rms, summarize
 from qkf.report import SUMMARY_COLUMNS, figure_png, summary_rows, write_bench, write_crlb_csv
 from qkf.states import DISPLAY_UNIT, GROUP_TITLES
@@ -78,10 +77,6 @@ def load_study(path: str | Path) -> tuple[Study, list[Config]]:
     return study, configs
 
 
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "case"
-
-
 def run_study(path: str | Path, out_dir: str | Path, progress: bool = True) -> list[Path]:
     """Run every case, then write the case folders, ``study.csv`` and ``study.png``."""
     study, configs = load_study(path)
@@ -113,7 +108,7 @@ def run_study(path: str | Path, out_dir: str | Path, progress: bool = True) -> l
     # everything computed: now write
     written = []
     for case, bound, result in pending:
-        sub = out / _slug(case.label)
+        sub = out / (slug(case.label).strip("_") or "case")
         if result is None:
             write_crlb_csv(sub / "crlb.csv", bound)
             written.append(sub / "crlb.csv")

@@ -166,8 +166,9 @@ class TransferAlignmentKF:
         """An independent copy (state and covariance), e.g. for an explorative filter."""
         return copy.deepcopy(self)
 
-    def load_trial(self, i: int, other: TransferAlignmentKF, j: int = 0) -> None:
-        """Overwrite trial ``i`` with trial ``j`` of ``other`` (estimates, covariance, flags)."""
+    def load_trial(self, i: int | slice, other: TransferAlignmentKF, j: int | slice = 0) -> None:
+        """Overwrite trial(s) ``i`` with trial(s) ``j`` of ``other`` (estimates, covariance,
+        flags, assumed attitude noise)."""
         self.q_hat[i] = other.q_hat[j]
         self.b_hat[i] = other.b_hat[j]
         self.p_hat[i] = other.p_hat[j]
@@ -179,12 +180,7 @@ class TransferAlignmentKF:
         """Overwrite this filter's estimates, covariance and divergence flags with ``other``'s."""
         if other.n_trials != self.n_trials:
             raise ValueError("filters of different batch sizes")
-        self.q_hat[:] = other.q_hat
-        self.b_hat[:] = other.b_hat
-        self.p_hat[:] = other.p_hat
-        self._pt[:] = other._pt
-        self.diverged[:] = other.diverged
-        self.sigma_a[:] = other.sigma_a
+        self.load_trial(slice(None), other, slice(None))
 
     def step(
         self,

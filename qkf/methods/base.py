@@ -33,6 +33,16 @@ def action_values(cfg: Config) -> np.ndarray:
     return np.asarray(cfg.adaptive.actions.values())
 
 
+def nominal_action(cfg: Config) -> int:
+    """Index of the action closest to κ = 1 (where adaptive methods and episodes start)."""
+    return int(np.argmin(np.abs(np.log(action_values(cfg)))))
+
+
+def decision_period(cfg: Config) -> int:
+    """Filter epochs per decision period ``T_c`` (at least one)."""
+    return max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+
+
 def method_rng(data: ScenarioData, trial_row: int, stream: int) -> np.random.Generator:
     """A generator for one trial's own draws by a method, independent of batch and chunking."""
     return np.random.default_rng([data.seed, int(data.trial_ids[trial_row]), 0x9E3779B9, stream])

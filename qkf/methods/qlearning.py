@@ -23,7 +23,14 @@ import math
 import numpy as np
 
 from qkf.config import Config
-from qkf.methods.base import MethodOutput, action_values, method_rng, new_filter
+from qkf.methods.base import (
+    MethodOutput,
+    action_values,
+    decision_period,
+    method_rng,
+    new_filter,
+    nominal_action,
+)
 from qkf.scenario import ScenarioData
 
 DIVERGENCE_PENALTY = -1e9
@@ -58,12 +65,12 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     kappas = action_values(cfg)
     n_act = kappas.size
     b, n = data.n_trials, data.n_epochs
-    period = max(1, round(qc.period_s / cfg.scenario.dt_s))
+    period = decision_period(cfg)
     main = new_filter(cfg, data)
     explore = new_filter(cfg, data)
     rngs = [method_rng(data, i, stream=1) for i in range(b)]
     table = np.zeros((b, n_act, n_act))
-    s = np.full(b, int(np.argmin(np.abs(np.log(kappas)))))  # start at κ = 1
+    s = np.full(b, nominal_action(cfg))  # start at κ = 1
     est = np.empty((b, n, 16))
     starts = list(range(0, n, period))
     kappa_index = np.empty((b, len(starts)), dtype=np.int64)
