@@ -32,8 +32,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.common.vec_env import TransferAlignmentVecEnv
 from agents.tabular import TabularQAgent, train_tabular
-from qkf.config import ConfigError, apply_override
-from qkf.io import atomic_write_text
+from qkf.transfer_alignment.config import ConfigError, apply_override
+from qkf.core.io import atomic_write_text
 
 ALGOS = ("dqn", "ppo", "a2c", "sac")
 

@@ -4,14 +4,14 @@ Run: ``.venv/bin/python benchmarks/filter_speed.py`` (or ``make speed``).
 
 For each batch size B the same 15-state filter runs over the epochs of the ``paper`` scenario:
 
-* ``batched``: :class:`qkf.filters.TransferAlignmentKF`, all B trials at once (model, update,
+* ``batched``: :class:`qkf.transfer_alignment.filter.TransferAlignmentKF`, all B trials at once (model, update,
   reset and propagation included; compiled kernel, trials spread over the cores);
 * ``filterpy``: one ``filterpy.kalman.KalmanFilter`` per trial, ``predict(F=Φ, Q=Q)`` and
   ``update(z, R=R, H=H)`` each epoch with the same transfer-alignment matrices, evaluated
   beforehand (outside the timing) so that only filterpy's own cost is counted: the most
   favourable reference for filterpy. Its cost does not depend on B (a plain loop), so it is
   measured on ``min(B, --ref-trials)`` trials;
-* ``filterpy+model`` (once): the complete per-trial reference ``qkf.filters.reference``, which
+* ``filterpy+model`` (once): the complete per-trial reference ``qkf.transfer_alignment.reference``, which
   also evaluates Φ, Q_d, H, R and the attitude reset per step in numpy/scipy.
 
 It prints filter-steps per second (trials × epochs / s), the ratio batched/filterpy as
@@ -32,11 +32,11 @@ import numba
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from qkf.config import load_config
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.filters.reference import run_reference
-from qkf.model import calibration_matrix, discretize, measurement_model
-from qkf.scenario import simulate, true_rates
+from qkf.transfer_alignment.config import load_config
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.reference import run_reference
+from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
+from qkf.transfer_alignment.scenario import simulate, true_rates
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -125,7 +125,7 @@ def main() -> None:
         f"numba threads {numba.get_num_threads()}, cpus {os.cpu_count()}"
     )
     full = full_reference_rate(cfg, 300)
-    print(f"filterpy+model reference (qkf.filters.reference): {full:,.0f} steps/s")
+    print(f"filterpy+model reference (qkf.transfer_alignment.reference): {full:,.0f} steps/s")
     print(
         f"{'B':>6} {'batched steps/s':>16} {'us/trial-step':>14} {'filterpy steps/s':>17} "
         f"{'peak MiB':>9}  speedup"

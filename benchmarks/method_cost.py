@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from qkf.config import load_config
-from qkf.methods import METHODS
-from qkf.methods.fixed import tuned_kappa
-from qkf.scenario import simulate
+from qkf.transfer_alignment.config import load_config
+from qkf.transfer_alignment.methods import METHODS
+from qkf.transfer_alignment.methods.fixed import tuned_kappa
+from qkf.transfer_alignment.scenario import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

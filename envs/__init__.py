@@ -1,6 +1,6 @@
 """Gymnasium environments of qkf (SPEC §5), registered as ``qkf/...`` on import.
 
-``qkf/TransferAlignment-v0`` wraps :class:`qkf.filters.TransferAlignmentKF`: the agent picks
+``qkf/TransferAlignment-v0`` wraps :class:`qkf.transfer_alignment.filter.TransferAlignmentKF`: the agent picks
 the process-noise factor κ every decision period.
 """
 

@@ -35,8 +35,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from envs.core import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind, StepOutput
-from qkf.config import Config, load_config
+from envs.episodes import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind, StepOutput
+from qkf.transfer_alignment.config import Config, load_config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

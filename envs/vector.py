@@ -14,9 +14,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from envs.core import RewardKind
+from envs.episodes import RewardKind
 from envs.transfer_alignment import Driver
-from qkf.config import Config
+from qkf.transfer_alignment.config import Config
 
 
 class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):

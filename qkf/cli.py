@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from qkf.config import Config, ConfigError, load_config
+from qkf.transfer_alignment.config import Config, ConfigError, load_config
 
 app = typer.Typer(
     add_completion=False,
@@ -54,8 +54,8 @@ def crlb_cmd(
     if matching is not None:
         sets.append(f"filter.matching={matching}")
     cfg = _load(config, sets)
-    from qkf.crlb import crlb
-    from qkf.report import write_crlb_csv
+    from qkf.transfer_alignment.crlb import crlb
+    from qkf.transfer_alignment.report import write_crlb_csv
 
     write_crlb_csv(out_file, crlb(cfg))
     out.print(f"wrote {out_file}")
@@ -85,9 +85,9 @@ def bench_cmd(
     ] = None,
 ) -> None:
     """Monte Carlo comparison of filters: rms.csv, summary.csv, summary.md, crlb.csv, plots."""
-    from qkf.benchmark import parse_methods, run_benchmark
-    from qkf.io import atomic_write_csv, slug
-    from qkf.report import SUMMARY_COLUMNS, summary_rows, write_bench
+    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
+    from qkf.core.io import atomic_write_csv, slug
+    from qkf.transfer_alignment.report import SUMMARY_COLUMNS, summary_rows, write_bench
 
     cfg = _load(config, set_)
     if trials is not None and trials < 1:
@@ -147,7 +147,7 @@ def study_cmd(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png."""
-    from qkf.study import run_study
+    from qkf.transfer_alignment.study import run_study
 
     try:
         written = run_study(study, out_dir, progress=not quiet)
@@ -195,8 +195,8 @@ def evaluate_cmd(
     """Filter Monte Carlo trials with the policy's κ; writes the SPEC §8 files."""
     from agents.training import Policy
     from envs.transfer_alignment import resolve_scenario
-    from qkf.benchmark import run_benchmark
-    from qkf.report import write_bench
+    from qkf.transfer_alignment.benchmark import run_benchmark
+    from qkf.transfer_alignment.report import write_bench
 
     if not model.is_file():
         raise _fail(f"{model}: no such model file")

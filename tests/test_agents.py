@@ -13,7 +13,7 @@ from agents.tabular import TabularQAgent, train_tabular
 from agents.training import Policy, load_train_config, train
 from envs import TransferAlignmentEnv
 from qkf.cli import app
-from qkf.config import ConfigError
+from qkf.transfer_alignment.config import ConfigError
 from tests.conftest import CONFIGS
 
 SHORT = ["scenario.duration_s=200"]

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from qkf.benchmark import run_benchmark
+from qkf.transfer_alignment.benchmark import run_benchmark
 from tests.conftest import cfg_with
 
 SETS = ("scenario.duration_s=300", "run.chunk_trials=2")

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from qkf import benchmark
+from qkf.transfer_alignment import benchmark
 from qkf.cli import app
-from qkf.report import SUMMARY_COLUMNS
-from qkf.states import STATE_COLUMNS
+from qkf.transfer_alignment.report import SUMMARY_COLUMNS
+from qkf.transfer_alignment.states import STATE_COLUMNS
 from tests.conftest import CONFIGS
 
 runner = CliRunner()

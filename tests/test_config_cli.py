@@ -11,9 +11,9 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
-from qkf.config import ConfigError, load_config
-from qkf.crlb import crlb
-from qkf.states import STATE_COLUMNS
+from qkf.transfer_alignment.config import ConfigError, load_config
+from qkf.transfer_alignment.crlb import crlb
+from qkf.transfer_alignment.states import STATE_COLUMNS
 from tests.conftest import CONFIGS
 
 runner = CliRunner()

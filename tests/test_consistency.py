@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from qkf.crlb import crlb
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.metrics import nees as nees_fn
-from qkf.metrics import state_errors
-from qkf.scenario import simulate
+from qkf.transfer_alignment.crlb import crlb
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.metrics import nees as nees_fn
+from qkf.transfer_alignment.metrics import state_errors
+from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
 
 MATCHING = ["attitude", "attitude_rate"]

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qkf import units
-from qkf.crlb import crlb
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.model import calibration_matrix, discretize, measurement_model
-from qkf.scenario import TruthParams, simulate, true_rates
+from qkf.core import units
+from qkf.transfer_alignment.crlb import crlb
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
+from qkf.transfer_alignment.scenario import TruthParams, simulate, true_rates
 from tests.conftest import cfg_with
 
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qkf import quat
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.filters.reference import run_reference
-from qkf.scenario import simulate
+from qkf.core import quat
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.reference import run_reference
+from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import align_quat_sign, cfg_with
 
 

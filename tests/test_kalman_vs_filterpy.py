@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from qkf.filters import kalman
+from qkf.core import kalman
 
 
 def _toy(seed: int) -> tuple[np.ndarray, ...]:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.scenario import simulate
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
 
 STEPS = 1_000_000

@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qkf.filters import FilterParams, TransferAlignmentKF, kalman
-from qkf.methods import METHODS
-from qkf.methods.fixed import tuned_kappa
-from qkf.methods.mmae import combine, update_log_weights
-from qkf.methods.qlearning import greedy_switch, q_update, run_qkf
-from qkf.methods.sage_husa import forgetting_weights, run_sage_husa, sage_husa_step
-from qkf.scenario import simulate
+from qkf.core import kalman
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.methods import METHODS
+from qkf.transfer_alignment.methods.fixed import tuned_kappa
+from qkf.transfer_alignment.methods.mmae import combine, update_log_weights
+from qkf.transfer_alignment.methods.qlearning import greedy_switch, q_update, run_qkf
+from qkf.transfer_alignment.methods.sage_husa import forgetting_weights, run_sage_husa, sage_husa_step
+from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
 
 
@@ -169,7 +170,7 @@ def test_sage_husa_q_stays_finite_and_positive(preset: str) -> None:
 
 
 def test_attitude_noise_adaptation_step_by_hand() -> None:
-    from qkf.methods.sage_husa import adapt_attitude_noise
+    from qkf.transfer_alignment.methods.sage_husa import adapt_attitude_noise
 
     nu = np.array([[1.0, 2.0, 2.0]])  # |ν|² = 9
     trace_s = np.array([3.0 * 0.5 + 6.0])  # H P Hᵀ has trace 6, R = 0.5 I
@@ -182,7 +183,7 @@ def test_attitude_noise_adaptation_step_by_hand() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("true_arcsec", [1.0, 10.0])
 def test_sage_husa_learns_the_true_attitude_noise(true_arcsec: float) -> None:
-    from qkf import units
+    from qkf.core import units
 
     cfg = cfg_with(
         f"scenario.ads.attitude_sigma_arcsec={true_arcsec}",

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qkf import units
-from qkf.model import (
+from qkf.core import units
+from qkf.transfer_alignment.model import (
     calibration_matrix,
     discretize,
     discretize_van_loan,
@@ -18,7 +18,7 @@ from qkf.model import (
     process_noise_density,
     rate_estimate,
 )
-from qkf.so3 import exp_matrix, left_jacobian, rodrigues_coefficients
+from qkf.core.so3 import exp_matrix, left_jacobian, rodrigues_coefficients
 
 # state scales (prior sigmas) for comparing matrices in well-scaled units
 D = np.array([60 * units.ARCSEC] * 3 + [2 * units.DEG_PER_H] * 3 + [1500 * units.PPM] * 9)

@@ -6,9 +6,9 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from qkf import units
-from qkf.model import calibration_matrix
-from qkf.scenario import orbit_rate, simulate, true_rates
+from qkf.core import units
+from qkf.transfer_alignment.model import calibration_matrix
+from qkf.transfer_alignment.scenario import orbit_rate, simulate, true_rates
 from tests.conftest import cfg_with
 
 

@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
-from qkf.config import ConfigError
-from qkf.study import load_study
+from qkf.transfer_alignment.config import ConfigError
+from qkf.transfer_alignment.study import load_study
 from tests.conftest import CONFIGS
 
 runner = CliRunner()

@@ -16,9 +16,9 @@ import numpy as np
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from envs.core import RewardKind
+from envs.episodes import RewardKind
 from envs.transfer_alignment import Driver
-from qkf.config import Config
+from qkf.transfer_alignment.config import Config
 
 
 class TransferAlignmentVecEnv(VecEnv):

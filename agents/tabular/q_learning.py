@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from qkf.io import atomic_write_bytes
+from qkf.core.io import atomic_write_bytes
 
 DEFAULT_BINS: dict[int, list[float]] = {
     # obs 2: mean log10(σ/σ₀) of the calibration block — how converged the calibration is

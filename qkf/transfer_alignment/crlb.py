@@ -10,7 +10,7 @@ and ``J_k⁻¹`` is the covariance of the optimal (Kalman) filter for that syste
 here in that covariance form, in units scaled by the prior sigmas, because the information
 matrices span 16 orders of magnitude. With rate matching the rate-measurement noise and the
 attitude process noise share the gyro noise (cross-covariance ``C = Γ A σ_v²/Δt Aᵀ``); the
-recursion then carries the correlated-noise terms (see ``qkf.filters.transfer_alignment``),
+recursion then carries the correlated-noise terms (see ``qkf.transfer_alignment.filter``),
 otherwise the bound would be optimistic. ``bound_k = sqrt(diag J_k⁻¹)`` after the measurement
 of epoch ``k``.
 """
@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf import units
-from qkf.config import Config
-from qkf.filters.transfer_alignment import FilterParams
-from qkf.model import calibration_matrix, discretize, measurement_model
-from qkf.scenario import TruthParams, calibration_walk_sigma, measurement_mask, true_rates
+from qkf.core import units
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import FilterParams
+from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
+from qkf.transfer_alignment.scenario import TruthParams, calibration_walk_sigma, measurement_mask, true_rates
 
 QP_FLOOR = 1e-20
 """Calibration process-noise density used when the truth has none, 1/s."""

@@ -1,6 +1,6 @@
 """A saved agent (``qkf train``) as a benchmark method: ``--methods policy:PATH``.
 
-The policy sees the environment's observation (``envs.core``) every decision period and its
+The policy sees the environment's observation (``envs.episodes``) every decision period and its
 action sets κ for the next period; everything else is the filter of every other method, run
 on the same simulated trials.
 """
@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.methods.base import MethodOutput
-from qkf.scenario import ScenarioData
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import MethodOutput
+from qkf.transfer_alignment.scenario import ScenarioData
 
 PREFIX = "policy:"
 
@@ -19,7 +19,7 @@ PREFIX = "policy:"
 def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
     from agents.training import Policy
-    from envs.core import BatchedEpisodes
+    from envs.episodes import BatchedEpisodes
     from envs.transfer_alignment import ActionMap
 
     policy = Policy(path)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.methods.base import MethodOutput, action_values, new_filter
-from qkf.metrics import state_errors
-from qkf.scenario import ScenarioData, simulate
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.metrics import state_errors
+from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
 
 def run_fixed(cfg: Config, data: ScenarioData, kappa: float) -> MethodOutput:

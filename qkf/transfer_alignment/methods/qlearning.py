@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.methods.base import (
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     decision_period,
@@ -31,7 +31,7 @@ from qkf.methods.base import (
     new_filter,
     nominal_action,
 )
-from qkf.scenario import ScenarioData
+from qkf.transfer_alignment.scenario import ScenarioData
 
 DIVERGENCE_PENALTY = -1e9
 """Reward for a period in which the explorative filter diverged, per second."""

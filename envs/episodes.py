@@ -1,5 +1,5 @@
 """Batched episodes of the transfer-alignment task: what the single and the vector environment
-share. N episodes run in one :class:`qkf.filters.TransferAlignmentKF` (plus its nominal κ = 1
+share. N episodes run in one :class:`qkf.transfer_alignment.filter.TransferAlignmentKF` (plus its nominal κ = 1
 shadow for the likelihood reward); each episode keeps its own epoch counter, so episodes that
 end early restart independently of the others.
 """
@@ -11,13 +11,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.crlb import crlb
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.methods.base import decision_period, nominal_action
-from qkf.metrics import nees, state_errors
-from qkf.scenario import ScenarioData, n_epochs, simulate
-from qkf.states import DISPLAY_UNIT
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.crlb import crlb
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.methods.base import decision_period, nominal_action
+from qkf.transfer_alignment.metrics import nees, state_errors
+from qkf.transfer_alignment.scenario import ScenarioData, n_epochs, simulate
+from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 OBS_SIZE = 9
 OBS_LIMIT = 100.0  # observations are clipped to ±this (they are of order one in practice)

@@ -36,7 +36,7 @@ from functools import lru_cache
 import numpy as np
 import scipy.linalg
 
-from qkf.so3 import exp_matrix, left_jacobian, skew
+from qkf.core.so3 import exp_matrix, left_jacobian, skew
 
 N_STATES = 15
 THETA = slice(0, 3)

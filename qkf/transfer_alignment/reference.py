@@ -1,7 +1,7 @@
 """A plain, slow reference implementation of the transfer-alignment filter on filterpy.
 
 One ``filterpy.kalman.KalmanFilter`` per trial, stepped epoch by epoch with ``Φ``, ``Q_d``,
-``H`` and ``R`` from :mod:`qkf.model` and quaternion algebra from scipy. It shares no code
+``H`` and ``R`` from :mod:`qkf.transfer_alignment.model` and quaternion algebra from scipy. It shares no code
 with the compiled kernel beyond the model equations, so it serves to check the kernel
 (tests) and as the speed reference (``benchmarks/filter_speed.py``).
 """
@@ -12,8 +12,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.spatial.transform import Rotation
 
-from qkf.filters.transfer_alignment import FilterParams
-from qkf.model import discretize, measurement_model, rate_estimate
+from qkf.transfer_alignment.filter import FilterParams
+from qkf.transfer_alignment.model import discretize, measurement_model, rate_estimate
 
 
 def run_reference(

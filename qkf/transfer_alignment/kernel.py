@@ -5,7 +5,7 @@ sequence. The covariance is held in scaled units ``P̃ = D⁻¹ P D⁻¹`` (``D`
 measurements are scaled by their nominal sigmas, so every matrix the arithmetic touches is of
 order one although the physical variances span 1e-10 to 1e-18.
 
-The math is that of ``qkf.model`` (numpy); tests check the two against each other. Quaternions
+The math is that of ``qkf.transfer_alignment.model`` (numpy); tests check the two against each other. Quaternions
 are scalar-last, as scipy stores them.
 """
 
@@ -14,14 +14,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from qkf.filters.kalman import (
+from qkf.core.kalman import (
     cholesky_inplace,
     forward_solve,
     make_workspace,
     update_one,
 )
-from qkf.quat import normalize as _normalize
-from qkf.quat import quat_from_rotvec, quat_mul, rotvec_from_quat
+from qkf.core.quat import normalize as _normalize
+from qkf.core.quat import quat_from_rotvec, quat_mul, rotvec_from_quat
 
 # Reassociation lets LLVM vectorise the small reductions; NaN and Inf semantics are kept, so
 # the finiteness checks still work.
@@ -34,7 +34,7 @@ _OM_COL = np.array([0, 1, 2, 1, 2, 2, 0, 0, 1])
 
 @nb.njit(cache=True, fastmath=_FASTMATH)
 def _rodrigues(theta: float) -> tuple[float, float, float]:
-    """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.so3.rodrigues_coefficients)."""
+    """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.core.so3.rodrigues_coefficients)."""
     t2 = theta * theta
     if theta < 0.1:
         a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0 - t2 * t2 * t2 / 5040.0 + t2**4 / 362880.0

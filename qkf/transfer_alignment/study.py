@@ -30,13 +30,13 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from qkf.benchmark import BenchResult, run_benchmark
-from qkf.config import Config, ConfigError, load_config
-from qkf.crlb import CrlbResult, crlb
-from qkf.io import atomic_write_bytes, atomic_write_csv, slug
-from qkf.metrics import group_rms, summarize
-from qkf.report import SUMMARY_COLUMNS, figure_png, summary_rows, write_bench, write_crlb_csv
-from qkf.states import DISPLAY_UNIT, GROUP_TITLES
+from qkf.transfer_alignment.benchmark import BenchResult, run_benchmark
+from qkf.transfer_alignment.config import Config, ConfigError, load_config
+from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.core.io import atomic_write_bytes, atomic_write_csv, slug
+from qkf.transfer_alignment.metrics import group_rms, summarize
+from qkf.transfer_alignment.report import SUMMARY_COLUMNS, figure_png, summary_rows, write_bench, write_crlb_csv
+from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES
 
 
 class Case(BaseModel):

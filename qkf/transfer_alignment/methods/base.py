@@ -6,9 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.filters import FilterParams, TransferAlignmentKF
-from qkf.scenario import ScenarioData
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.scenario import ScenarioData
 
 
 @dataclass

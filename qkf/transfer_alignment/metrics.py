@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from qkf.states import GROUPS, N_STATES
+from qkf.transfer_alignment.states import GROUPS, N_STATES
 
 
 def state_errors(

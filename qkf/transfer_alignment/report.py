@@ -11,11 +11,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from qkf.benchmark import BenchResult
-from qkf.crlb import CrlbResult
-from qkf.io import atomic_write_bytes, atomic_write_csv
-from qkf.metrics import group_rms, summarize
-from qkf.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS, STATE_COLUMNS
+from qkf.transfer_alignment.benchmark import BenchResult
+from qkf.transfer_alignment.crlb import CrlbResult
+from qkf.core.io import atomic_write_bytes, atomic_write_csv
+from qkf.transfer_alignment.metrics import group_rms, summarize
+from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS, STATE_COLUMNS
 
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "method",

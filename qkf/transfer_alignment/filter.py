@@ -8,7 +8,7 @@ Each epoch ``k``, for every trial:
    ``H_r = [0, −A, −A Ω(ω̂)]``, ``R_a = σ_a² I``, ``R_r = σ_r² I + σ_v² A Aᵀ / Δt``; then the
    reset ``Ĉ ← Ĉ Exp(δθ̂)``, ``b̂ += Δb̂``, ``p̂ += Δp̂`` and a fresh ``ω̂``;
 3. propagation over ``Δt``: ``Ĉ ← Ĉ Exp(ω̂ Δt)``, ``P ← Φ P Φᵀ + Q_d(κ q_p0)`` with the exact
-   ``Φ`` and ``Q_d`` of :mod:`qkf.model`.
+   ``Φ`` and ``Q_d`` of :mod:`qkf.transfer_alignment.model`.
 
 Rate matching and correlated noise. The gyro noise ``η_k`` of epoch ``k`` is in the rate
 innovation ``z_r,k`` (that is why ``R_r`` holds ``σ_v² A Aᵀ/Δt``) and it also drives the attitude
@@ -38,11 +38,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from qkf import units
-from qkf.config import Config
-from qkf.filters import _ta_kernel
-from qkf.model import gauss_legendre
-from qkf.scenario import ScenarioData
+from qkf.core import units
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment import kernel as _ta_kernel
+from qkf.transfer_alignment.model import gauss_legendre
+from qkf.transfer_alignment.scenario import ScenarioData
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Trials are simulated in chunks (``run.chunk_trials``); every method sees the same simulated
 data (paired comparison), and trial ``i`` is the same whatever the chunking. Results are held
-in memory and written only when the run has finished (atomically, see ``qkf.io``).
+in memory and written only when the run has finished (atomically, see ``qkf.core.io``).
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from qkf.config import Config
-from qkf.crlb import CrlbResult, crlb
-from qkf.methods import METHODS, MethodOutput, resolve_method
-from qkf.methods.base import action_values, decision_period
-from qkf.metrics import ErrorAccumulator, state_errors, summarize
-from qkf.scenario import n_epochs, simulate
-from qkf.states import DISPLAY_UNIT
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.transfer_alignment.methods import METHODS, MethodOutput, resolve_method
+from qkf.transfer_alignment.methods.base import action_values, decision_period
+from qkf.transfer_alignment.metrics import ErrorAccumulator, state_errors, summarize
+from qkf.transfer_alignment.scenario import n_epochs, simulate
+from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 
 @dataclass

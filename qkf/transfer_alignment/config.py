@@ -1,7 +1,7 @@
 """Configuration: YAML presets validated with pydantic, in display units (SPEC §1–§2).
 
 Values in a config carry their unit in their name (``rate_deg_s``, ``attitude_sigma_arcsec``);
-``qkf.scenario`` and ``qkf.filters`` convert to SI. Unknown keys are errors, so a typo never
+``qkf.transfer_alignment.scenario`` and ``qkf.transfer_alignment.filter`` convert to SI. Unknown keys are errors, so a typo never
 silently falls back to a default.
 """
 

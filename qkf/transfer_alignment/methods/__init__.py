@@ -1,6 +1,6 @@
 """Ways of choosing the process-noise factor κ of the transfer-alignment filter (SPEC §3).
 
-Every method filters all trials of a :class:`qkf.scenario.ScenarioData` at once and returns a
+Every method filters all trials of a :class:`qkf.transfer_alignment.scenario.ScenarioData` at once and returns a
 :class:`MethodOutput`; ``qkf bench --methods`` picks them by the names in :data:`METHODS`.
 """
 
@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from qkf.config import Config
-from qkf.methods.base import MethodOutput
-from qkf.methods.fixed import run_kf, run_kf_tuned
-from qkf.methods.mmae import run_mmae
-from qkf.methods.policy import PREFIX, run_policy
-from qkf.methods.qlearning import run_qkf
-from qkf.methods.sage_husa import run_sage_husa
-from qkf.scenario import ScenarioData
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import MethodOutput
+from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
+from qkf.transfer_alignment.methods.mmae import run_mmae
+from agents.policy import PREFIX, run_policy
+from qkf.transfer_alignment.methods.qlearning import run_qkf
+from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
+from qkf.transfer_alignment.scenario import ScenarioData
 
 MethodFn = Callable[[Config, ScenarioData], MethodOutput]
 

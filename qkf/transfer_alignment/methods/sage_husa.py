@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.config import Config
-from qkf.methods.base import MethodOutput, action_values, new_filter
-from qkf.scenario import ScenarioData
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.scenario import ScenarioData
 
 
 def forgetting_weights(b: float, n: int) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.units import ARCSEC, DEG_PER_H, PPM, URAD
+from qkf.core.units import ARCSEC, DEG_PER_H, PPM, URAD
 
 N_STATES = 15
 

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from qkf import units
-from qkf.config import Config, Scenario
-from qkf.model import calibration_matrix
-from qkf.quat import cumulative_rotation
+from qkf.core import units
+from qkf.transfer_alignment.config import Config, Scenario
+from qkf.transfer_alignment.model import calibration_matrix
+from qkf.core.quat import cumulative_rotation
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 _STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate")

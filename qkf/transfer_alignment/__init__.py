@@ -1,0 +1,1 @@
+"""Transfer alignment: in-orbit gyro calibration against a master's attitude reference."""
