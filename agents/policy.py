@@ -1,30 +1,65 @@
-"""A saved agent (``qkf train``) as a benchmark method: ``--methods policy:PATH``.
+"""A saved agent as a κ policy, and as a benchmark method: ``--methods policy:PATH``.
 
-The policy sees the environment's observation (``envs.episodes``) every decision period and its
-action sets κ for the next period; everything else is the filter of every other method, run
+``policy:PATH`` is resolved through the method-factory registry of
+:mod:`qkf.transfer_alignment.methods` (entry-point group ``qkf.method_factories``, declared in
+``pyproject.toml``), so ``qkf`` itself never imports this package. The model needs the
+``config.yaml`` its training wrote beside it (``qkf train`` does): it says which agent, action
+type and decision period the policy was trained with.
+
+The policy sees the environment's observation (:mod:`envs.episodes`) every decision period and
+its action sets κ for the next period; everything else is the filter of every other method, run
 on the same simulated trials.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
+from agents.algorithms import algorithm_class
+from agents.config import load_train_config
+from envs.episodes import ActionMap, BatchedEpisodes
+from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput
+from qkf.transfer_alignment.methods.base import MethodOutput, per_epoch
 from qkf.transfer_alignment.scenario import ScenarioData
 
-PREFIX = "policy:"
+
+class Policy:
+    """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, 9))``."""
+
+    def __init__(self, path: str | Path) -> None:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such model file")
+        cfg_file = path.parent / "config.yaml"
+        if not cfg_file.is_file():
+            raise ConfigError(f"{path}: no config.yaml beside the model")
+        self.cfg = load_train_config(cfg_file)
+        self._tab: Any = None
+        self._sb3: Any = None
+        if path.suffix == ".npz":
+            from agents.tabular import TabularQAgent
+
+            self._tab = TabularQAgent.load(path)
+        else:
+            self._sb3 = algorithm_class(self.cfg.agent).load(path, device="cpu")
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        if self._tab is not None:
+            return np.asarray(self._tab.act(obs, deterministic=True))
+        action, _ = self._sb3.predict(obs, deterministic=True)
+        return np.asarray(action)
 
 
 def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
-    from agents.training import Policy
-    from envs.episodes import BatchedEpisodes
-    from envs.transfer_alignment import ActionMap
-
     policy = Policy(path)
     actions = ActionMap(np.asarray(cfg.adaptive.actions.values()), policy.cfg.action_type)
-    core = BatchedEpisodes(cfg, data.n_trials, "likelihood")
+    core = BatchedEpisodes(cfg, data.n_trials, "likelihood", policy.cfg.period_s)
     obs = core.load(data)
     est = np.full((data.n_trials, data.n_epochs, 16), np.nan)
     kappa_log = []
@@ -36,11 +71,32 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
         k1 = min(data.n_epochs, k0 + core.period)
         est[:, k0:k1] = out.est[:, : k1 - k0]
         obs = out.obs
-    kappas = np.asarray(cfg.adaptive.actions.values())
-    idx = np.abs(np.log(np.stack(kappa_log, axis=1))[..., None] - np.log(kappas)).argmin(axis=-1)
     return MethodOutput(
         est=est,
         diverged=core.kf.diverged.copy(),
-        extras={"kappa_index": idx} if policy.cfg.action_type == "discrete" else {},
+        kappa=per_epoch(np.stack(kappa_log, axis=1), core.period, data.n_epochs),
         notes={"policy": f"{policy.cfg.agent} policy from {path}"},
     )
+
+
+@dataclass(frozen=True)
+class PolicyMethod:
+    """``policy:PATH`` as a method (picklable: it carries only the path)."""
+
+    path: str
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        return run_policy(cfg, data, self.path)
+
+
+def policy_method(path: str) -> PolicyMethod:
+    """Method factory of ``policy:PATH``; checks the files before any trial runs."""
+    model = Path(path)
+    if not model.is_file():
+        raise FileNotFoundError(f"{path}: no such model file")
+    if not (model.parent / "config.yaml").is_file():
+        raise FileNotFoundError(
+            f"{path}: no config.yaml beside the model (qkf train writes it; it names the agent, "
+            "action type and decision period)"
+        )
+    return PolicyMethod(path)

@@ -34,8 +34,8 @@ from filterpy.kalman import KalmanFilter
 
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
-from qkf.transfer_alignment.reference import run_reference
 from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
+from qkf.transfer_alignment.reference import run_reference
 from qkf.transfer_alignment.scenario import simulate, true_rates
 
 ROOT = Path(__file__).resolve().parents[1]

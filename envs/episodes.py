@@ -1,28 +1,39 @@
-"""Batched episodes of the transfer-alignment task: what the single and the vector environment
-share. N episodes run in one :class:`qkf.transfer_alignment.filter.TransferAlignmentKF` (plus its nominal κ = 1
-shadow for the likelihood reward); each episode keeps its own epoch counter, so episodes that
-end early restart independently of the others.
+"""Batched episodes of the transfer-alignment task: what every front end shares (the single and
+the vector Gymnasium environments, the SB3 ``VecEnv`` and the ``policy:`` benchmark method).
+
+N episodes run in one :class:`~qkf.transfer_alignment.filter.TransferAlignmentKF` (plus its
+nominal κ = 1 shadow for the likelihood gain); each episode keeps its own epoch counter, so
+episodes that end early restart independently of the others. :class:`EpisodeDriver` adds the
+action map and one generator per episode. The observation and rewards are documented in
+docs/environment.md.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
 
-from qkf.transfer_alignment.config import Config
+from envs.rewards import REWARDS, PeriodOutcome
+from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.crlb import crlb
-from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import decision_period, nominal_action
-from qkf.transfer_alignment.metrics import nees, state_errors
-from qkf.transfer_alignment.scenario import ScenarioData, n_epochs, simulate
+from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
+from qkf.transfer_alignment.methods.base import decision_steps
+from qkf.transfer_alignment.metrics import state_errors
+from qkf.transfer_alignment.params import FilterParams, n_epochs
+from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 OBS_SIZE = 9
-OBS_LIMIT = 100.0  # observations are clipped to ±this (they are of order one in practice)
+OBS_LIMIT = 100.0  # observations are clipped to ±this
 DIVERGENCE_REWARD = -1e3
-RewardKind = Literal["likelihood", "oracle", "nees"]
+DEFAULT_PERIOD_S = 10.0
+"""Decision period of the environments, s (one step = this much filtering)."""
 
 
 @dataclass
@@ -42,15 +53,19 @@ class StepOutput:
 class BatchedEpisodes:
     """N synchronous episodes; ``reset(i, seed)`` starts episode i anew from ``seed``."""
 
-    def __init__(self, cfg: Config, n: int, reward: RewardKind) -> None:
+    def __init__(
+        self, cfg: Config, n: int, reward: str, period_s: float = DEFAULT_PERIOD_S
+    ) -> None:
         self.cfg = cfg
         self.n = n
         self.reward_kind = reward
+        self.reward = REWARDS[reward]
         self.params = FilterParams.from_config(cfg)
         self.kappas = np.asarray(cfg.adaptive.actions.values())
-        self.period = decision_period(cfg)
-        self._start_pos = nominal_action(cfg) / (self.kappas.size - 1)
+        self.period = decision_steps(period_s, cfg.scenario.dt_s)
+        self._start_pos = cfg.adaptive.actions.nominal_index() / (self.kappas.size - 1)
         self.n_epochs = n_epochs(cfg.scenario)
+        self.episode_steps = math.ceil(self.n_epochs / self.period)
         self.bound = crlb(cfg).bound
         ne = self.n_epochs
         self.gyro = np.zeros((n, ne, 3))
@@ -113,8 +128,7 @@ class BatchedEpisodes:
             self._window(a, k0) for a in (self.gyro, self.ads_q, self.ads_rate)
         )
         meas = self._window(self.has_meas, k0) & valid
-        want_cov = self.reward_kind == "nees"
-        rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=want_cov)
+        rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
@@ -133,17 +147,8 @@ class BatchedEpisodes:
         with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
             dll = ll - ll_nom
         bound = self.bound[np.minimum(k0[:, None] + np.arange(self.period), self.n_epochs - 1)]
-        if self.reward_kind == "likelihood":
-            reward = dll / (steps * self.cfg.scenario.dt_s)
-        elif self.reward_kind == "oracle":
-            ratio = np.linalg.norm(err[..., 6:15], axis=-1) / np.linalg.norm(
-                bound[..., 6:15], axis=-1
-            )
-            reward = -np.sum(np.where(valid, ratio, 0.0), axis=1) / steps
-        else:
-            assert rec.cov is not None
-            ne = nees(err, rec.cov)
-            reward = -np.abs(np.sum(np.where(valid, ne, 0.0), axis=1) / steps / 15.0 - 1.0)
+        outcome = PeriodOutcome(rec, dll, err, bound, valid, steps, self.cfg.scenario.dt_s)
+        reward = np.asarray(self.reward.fn(outcome), dtype=float)
         reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)
         obs = self._observe(rec, valid, last, dll, steps)
         return StepOutput(
@@ -161,7 +166,7 @@ class BatchedEpisodes:
 
     def _observe(
         self,
-        rec: Any,
+        rec: FilterRecord,
         valid: np.ndarray,
         last: np.ndarray,
         dll: np.ndarray,
@@ -194,3 +199,91 @@ def _masked_mean(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Row means over finite, valid entries; 0 for a row without any (no data, no rate rows)."""
     ok = valid & np.isfinite(x)
     return np.where(ok, x, 0.0).sum(axis=1) / np.maximum(ok.sum(axis=1), 1)
+
+
+class ActionMap:
+    """Actions → κ, for both action types; invalid actions raise ``ValueError``."""
+
+    def __init__(self, kappas: np.ndarray, action_type: str) -> None:
+        if action_type not in ("discrete", "continuous"):
+            raise ValueError(f"action_type must be 'discrete' or 'continuous', not {action_type!r}")
+        self.kappas = kappas
+        self.log_kappa = np.log10(kappas)
+        self.action_type = action_type
+        self.space: spaces.Space[Any] = (
+            spaces.Discrete(kappas.size)
+            if action_type == "discrete"
+            else spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        )
+
+    def __call__(self, action: Any) -> tuple[float, float]:
+        """κ and its position in [0, 1] on the action scale."""
+        if self.action_type == "discrete":
+            a = np.asarray(action)
+            v = a.reshape(-1)[0] if a.size == 1 else None
+            integral = v is not None and (
+                np.issubdtype(a.dtype, np.integer)
+                or (
+                    np.issubdtype(a.dtype, np.floating) and np.isfinite(v) and float(v).is_integer()
+                )
+            )
+            if not integral:
+                raise ValueError(f"discrete action must be an integer index, got {action!r}")
+            i = int(v)  # type: ignore[arg-type]
+            if not 0 <= i < self.kappas.size:
+                raise ValueError(f"action {i} outside 0..{self.kappas.size - 1}")
+            return float(self.kappas[i]), i / (self.kappas.size - 1)
+        a = np.asarray(action, dtype=float).reshape(-1)
+        if a.size != 1 or not np.isfinite(a[0]) or abs(a[0]) > 1.0 + 1e-6:
+            raise ValueError(
+                f"continuous action must be one finite value in [-1, 1], got {action!r}"
+            )
+        u = (float(np.clip(a[0], -1.0, 1.0)) + 1.0) / 2.0
+        lo, hi = self.log_kappa[0], self.log_kappa[-1]
+        return float(10.0 ** (lo + u * (hi - lo))), u
+
+
+class EpisodeDriver:
+    """What the environment front ends share: the config, the action map, the batched episodes
+    and one generator per episode (each episode's data is drawn from its own generator).
+
+    ``scenario``: a preset name, a config path or a :class:`Config`; ``reward``: a name of
+    :data:`envs.rewards.REWARDS`; ``period_s``: the decision period, s.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        scenario: str | Path | Config,
+        action_type: str,
+        reward: str,
+        overrides: list[str] | None,
+        period_s: float = DEFAULT_PERIOD_S,
+    ) -> None:
+        if n < 1:
+            raise ValueError("num_envs must be at least 1")
+        if reward not in REWARDS:
+            raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS.names())}")
+        if not (np.isfinite(period_s) and period_s > 0.0):
+            raise ValueError(f"period_s must be positive, got {period_s!r}")
+        self.cfg = scenario if isinstance(scenario, Config) else load_config(scenario, overrides)
+        self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
+        self.observation_space = spaces.Box(
+            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
+        )
+        self.core = BatchedEpisodes(self.cfg, n, reward, period_s)
+        self.rngs = [seeding.np_random()[0] for _ in range(n)]
+
+    @property
+    def episode_steps(self) -> int:
+        """Steps of a full episode: ``ceil(epochs / period)``, from the config."""
+        return self.core.episode_steps
+
+    def reset_env(self, i: int) -> np.ndarray:
+        """Start episode ``i`` anew from its generator; its first observation."""
+        return self.core.reset(i, int(self.rngs[i].integers(2**63 - 1)))
+
+    def step(self, actions: Any) -> StepOutput:
+        """Map one action per episode to κ and run one decision period in all of them."""
+        mapped = [self.actions(a) for a in actions]
+        return self.core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))

@@ -1,28 +1,40 @@
-r"""Gymnasium environment ``qkf/TransferAlignment-v0`` (SPEC §5).
+r"""Gymnasium environment ``qkf/TransferAlignment-v0`` (docs/environment.md).
 
 One episode is one realisation of a scenario (truth and noise drawn from ``np_random`` at
-reset); one step is one decision period ``T_c`` (10 filter epochs by default) in which the
-transfer-alignment filter runs with the process-noise factor the agent chose.
+reset); one step is one decision period (``period_s``, 10 s by default) in which the
+transfer-alignment filter runs with the process-noise factor κ the agent chose. An episode has
+``ceil(duration / period)`` steps, from the config (``env.unwrapped.episode_steps``); the
+environment truncates itself there, so ``gym.make`` and ``gym.make_vec`` agree for any duration.
 
-Actions: ``Discrete(A)``, an index into the κ action set (default 11 values 0.01 … 100), or,
-with ``action_type="continuous"``, ``Box(-1, 1, (1,))`` mapped linearly to
-``log10 κ ∈ [log10 κ_min, log10 κ_max]``.
+Arguments: ``scenario`` (preset name, config path or ``Config``), ``action_type``
+(``discrete`` | ``continuous``), ``reward`` (a name of :data:`envs.rewards.REWARDS`),
+``overrides`` (``--set`` style), ``period_s``, ``render_mode`` (None only).
 
-Observation (float32, 9 values, roughly unit scale):
+=====================  ===================================================================
+Action                 Meaning
+=====================  ===================================================================
+``Discrete(A)``        index into the κ action set (default 11 values, 0.01 … 100)
+``Box(-1, 1, (1,))``   ``action_type="continuous"``: linear in ``log10 κ`` over the set's range
+=====================  ===================================================================
 
-0–2. mean ``log10(σ / σ₀)`` of the attitude, bias and calibration blocks of P (σ₀: prior);
-3–4. mean NIS of the attitude rows and of the rate rows over the period, divided by 3;
-5.   innovation log-likelihood per epoch and measurement row, relative to the nominal (κ = 1)
-     filter run from the same state over the period;
-6.   elapsed fraction of the episode;  7. |ω̂| in deg/s;  8. κ index scaled to [0, 1].
+=====  ==========================================================  ===========================
+Obs    Meaning (float32)                                           Typical scale
+=====  ==========================================================  ===========================
+0      mean ``log10(σ/σ₀)`` of the attitude block of P              −3 … 0
+1      same, bias block                                             −3 … 0
+2      same, calibration block                                      −3 … 0
+3      mean attitude NIS over the period / 3                        ~1 (jumps at events)
+4      mean rate NIS over the period / 3 (0 without rate matching)  ~1
+5      log-likelihood gain over the κ = 1 filter, per epoch & row   1e-6 … 1e-4
+6      elapsed fraction of the episode                              0 … 1
+7      ``|ω̂|``, deg/s                                              0.06 … 1
+8      κ index scaled to [0, 1]                                     0 … 1
+=====  ==========================================================  ===========================
 
-Rewards (``reward=``): ``likelihood`` (default, no truth, as the QKF's:
-``(ℓ_agent − ℓ_nominal) / T_c``), ``oracle`` (minus the period's mean of ``‖Δp‖ / ‖σ_CRLB,p‖``)
-or ``nees`` (minus ``|mean NEES / 15 − 1|`` over the period).
-
-``info`` carries the true errors at the end of the period in display units (``errors``: 15
-values in SPEC §8 order), the CRLB there (``crlb``), ``kappa``, ``t_s`` and ``diverged``. A
-filter that goes non-finite ends the episode (``terminated=True``).
+Rewards: see :mod:`envs.rewards`. ``info`` carries the true errors at the end of the period in
+display units (``errors``: 15 values, the ``crlb.csv`` column order), the CRLB there
+(``crlb``), ``kappa``, ``t_s`` and ``diverged``. A filter that goes non-finite ends the episode
+(``terminated=True``).
 """
 
 from __future__ import annotations
@@ -32,99 +44,17 @@ from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
-from gymnasium.utils import seeding
 
-from envs.episodes import OBS_LIMIT, OBS_SIZE, BatchedEpisodes, RewardKind, StepOutput
-from qkf.transfer_alignment.config import Config, load_config
-
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
+from qkf.transfer_alignment.config import Config
 
 
-def resolve_scenario(scenario: str | Path | Config, overrides: list[str] | None = None) -> Config:
-    """A preset name (``thermal_snap``), a config path, or a ``Config`` as it is."""
-    if isinstance(scenario, Config):
-        return scenario
-    path = Path(scenario)
-    if not path.suffix:
-        path = CONFIGS / f"{str(scenario).replace('-', '_')}.yaml"
-    return load_config(path, overrides or [])
-
-
-class ActionMap:
-    """Actions → κ, for both action types; invalid actions raise ``ValueError``."""
-
-    def __init__(self, kappas: np.ndarray, action_type: str) -> None:
-        if action_type not in ("discrete", "continuous"):
-            raise ValueError(f"action_type must be 'discrete' or 'continuous', not {action_type!r}")
-        self.kappas = kappas
-        self.log_kappa = np.log10(kappas)
-        self.action_type = action_type
-        self.space: spaces.Space[Any] = (
-            spaces.Discrete(kappas.size)
-            if action_type == "discrete"
-            else spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+def check_render_mode(render_mode: str | None) -> None:
+    """The environments draw nothing: only ``render_mode=None`` is accepted."""
+    if render_mode is not None:
+        raise ValueError(
+            f"render_mode {render_mode!r} is not supported: these environments draw nothing"
         )
-
-    def __call__(self, action: Any) -> tuple[float, float]:
-        """κ and its position in [0, 1] on the action scale."""
-        if self.action_type == "discrete":
-            a = np.asarray(action)
-            v = a.reshape(-1)[0] if a.size == 1 else None
-            integral = v is not None and (
-                np.issubdtype(a.dtype, np.integer)
-                or (
-                    np.issubdtype(a.dtype, np.floating) and np.isfinite(v) and float(v).is_integer()
-                )
-            )
-            if not integral:
-                raise ValueError(f"discrete action must be an integer index, got {action!r}")
-            i = int(v)  # type: ignore[arg-type]
-            if not 0 <= i < self.kappas.size:
-                raise ValueError(f"action {i} outside 0..{self.kappas.size - 1}")
-            return float(self.kappas[i]), i / (self.kappas.size - 1)
-        a = np.asarray(action, dtype=float).reshape(-1)
-        if a.size != 1 or not np.isfinite(a[0]) or abs(a[0]) > 1.0 + 1e-6:
-            raise ValueError(
-                f"continuous action must be one finite value in [-1, 1], got {action!r}"
-            )
-        u = (float(np.clip(a[0], -1.0, 1.0)) + 1.0) / 2.0
-        lo, hi = self.log_kappa[0], self.log_kappa[-1]
-        return float(10.0 ** (lo + u * (hi - lo))), u
-
-
-class Driver:
-    """What the environment front ends share: the config, the action map, the batched episodes
-    and one generator per episode (each episode's data is drawn from its own generator)."""
-
-    def __init__(
-        self,
-        n: int,
-        scenario: str | Path | Config,
-        action_type: str,
-        reward: str,
-        overrides: list[str] | None,
-    ) -> None:
-        if n < 1:
-            raise ValueError("num_envs must be at least 1")
-        if reward not in ("likelihood", "oracle", "nees"):
-            raise ValueError(f"reward must be likelihood, oracle or nees, not {reward!r}")
-        self.cfg = resolve_scenario(scenario, overrides)
-        self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
-        self.observation_space = spaces.Box(
-            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
-        )
-        self.core = BatchedEpisodes(self.cfg, n, reward)  # type: ignore[arg-type]
-        self.rngs = [seeding.np_random()[0] for _ in range(n)]
-
-    def reset_env(self, i: int) -> np.ndarray:
-        """Start episode ``i`` anew from its generator; its first observation."""
-        return self.core.reset(i, int(self.rngs[i].integers(2**63 - 1)))
-
-    def step(self, actions: Any) -> StepOutput:
-        """Map one action per episode to κ and run one decision period in all of them."""
-        mapped = [self.actions(a) for a in actions]
-        return self.core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))
 
 
 class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
@@ -136,10 +66,15 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         self,
         scenario: str | Path | Config = "paper",
         action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: RewardKind = "likelihood",
+        reward: str = "likelihood",
         overrides: list[str] | None = None,
+        period_s: float = DEFAULT_PERIOD_S,
+        render_mode: str | None = None,
     ) -> None:
-        self._driver = Driver(1, scenario, action_type, reward, overrides)
+        check_render_mode(render_mode)
+        self.render_mode = render_mode
+        self._driver = EpisodeDriver(1, scenario, action_type, reward, overrides, period_s)
+        self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
         self.action_space = self.actions.space

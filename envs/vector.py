@@ -14,8 +14,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from envs.episodes import RewardKind
-from envs.transfer_alignment import Driver
+from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
+from envs.transfer_alignment import check_render_mode
 from qkf.transfer_alignment.config import Config
 
 
@@ -29,12 +29,17 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         num_envs: int,
         scenario: str | Path | Config = "paper",
         action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: RewardKind = "likelihood",
+        reward: str = "likelihood",
         overrides: list[str] | None = None,
+        period_s: float = DEFAULT_PERIOD_S,
+        render_mode: str | None = None,
         **_: Any,
     ) -> None:
+        check_render_mode(render_mode)
+        self.render_mode = render_mode
         self.num_envs = num_envs
-        self._driver = Driver(num_envs, scenario, action_type, reward, overrides)
+        self._driver = EpisodeDriver(num_envs, scenario, action_type, reward, overrides, period_s)
+        self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
         self.single_action_space = self._driver.actions.space
         self.single_observation_space = self._driver.observation_space

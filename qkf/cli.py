@@ -1,6 +1,10 @@
-"""Command line: ``qkf crlb`` and ``qkf bench`` (SPEC §8).
+"""The command line: ``qkf crlb``, ``bench``, ``study``, ``train``, ``evaluate``.
 
-Exit codes: 0 success, 2 bad input (config, option), 1 anything else.
+This is the one module that sits above ``qkf``, ``envs`` and ``agents``: the library never
+imports the other two; the commands that need them import them when they run (so ``torch`` is
+loaded only by the commands that use an agent). Config arguments are preset names
+(``thermal_snap``) or paths. Exit codes: 0 success, 2 bad input (config, option), 1 anything
+else.
 """
 
 from __future__ import annotations
@@ -11,8 +15,10 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
-from qkf.transfer_alignment.config import Config, ConfigError, load_config
+from qkf.core.config import ConfigError
+from qkf.transfer_alignment.config import Config, load_config
 
 app = typer.Typer(
     add_completion=False,
@@ -29,11 +35,17 @@ SetOption = Annotated[
 
 
 def _fail(msg: str, code: int = 2) -> typer.Exit:
-    err.print(f"[bold red]error:[/] {msg}", highlight=False, markup=True)
+    # soft_wrap: a message must not be broken at the terminal width (file paths, fields)
+    err.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
     return typer.Exit(code)
 
 
-def _load(config: Path, sets: list[str] | None) -> Config:
+ConfigArgument = Annotated[
+    str, typer.Argument(help="Scenario: a preset name (paper) or a YAML path.")
+]
+
+
+def _load(config: str, sets: list[str] | None) -> Config:
     try:
         return load_config(config, sets or [])
     except ConfigError as exc:
@@ -42,7 +54,7 @@ def _load(config: Path, sets: list[str] | None) -> Config:
 
 @app.command("crlb")
 def crlb_cmd(
-    config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
+    config: ConfigArgument,
     out_file: Annotated[Path, typer.Option("--out", help="CSV file to write.")],
     set_: SetOption = None,
     matching: Annotated[
@@ -63,10 +75,13 @@ def crlb_cmd(
 
 @app.command("bench")
 def bench_cmd(
-    config: Annotated[Path, typer.Argument(help="Scenario config (YAML).")],
+    config: ConfigArgument,
     methods: Annotated[
         str,
-        typer.Option(help="Comma-separated methods, or 'all': kf, kf-tuned, sage-husa, qkf, mmae."),
+        typer.Option(
+            help="Comma-separated method specs, or 'all': kf, kf-tuned, sage-husa, qkf, mmae; "
+            "policy:PATH (a saved agent); package.module:function (your own); LABEL=SPEC."
+        ),
     ] = "all",
     trials: Annotated[
         int | None, typer.Option(help="Monte Carlo trials (config: run.trials).")
@@ -84,10 +99,16 @@ def bench_cmd(
         int | None, typer.Option(help="local backend: worker processes (config: run.workers).")
     ] = None,
 ) -> None:
-    """Monte Carlo comparison of filters: rms.csv, summary.csv, summary.md, crlb.csv, plots."""
+    """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots.
+
+    A config with a ``sweep`` runs once per value into OUT/<key>=<value>/ and writes
+    OUT/sweep_summary.csv.
+    """
+    from qkf.core.montecarlo import BACKENDS
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
-    from qkf.core.io import atomic_write_csv, slug
-    from qkf.transfer_alignment.report import SUMMARY_COLUMNS, summary_rows, write_bench
+    from qkf.transfer_alignment.methods import MethodOutputError
+    from qkf.transfer_alignment.report import write_bench
+    from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
 
     cfg = _load(config, set_)
     if trials is not None and trials < 1:
@@ -95,52 +116,49 @@ def bench_cmd(
     if seed is not None and seed < 0:
         raise _fail("--seed must be non-negative")
     try:
-        names = parse_methods(methods)
+        named = parse_methods(methods)
     except ValueError as exc:
         raise _fail(f"--methods: {exc}") from None
-    if backend not in ("local", "ray"):
-        raise _fail(f"--backend: {backend!r} is not local or ray")
+    if backend not in BACKENDS:
+        raise _fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
     if workers is not None and workers < 1:
         raise _fail("--workers must be at least 1")
+    bench = {
+        "trials": trials,
+        "seed": seed,
+        "progress": not quiet,
+        "backend": backend,
+        "workers": workers,
+    }
 
-    if cfg.sweep is None:
-        runs = [(None, cfg, out_dir)]
-    else:
-        runs = []
-        for value in cfg.sweep.values:
-            sub = _load(config, [*(set_ or []), f"{cfg.sweep.key}={value}"])
-            leaf = cfg.sweep.key.split(".")[-1]
-            runs.append((value, sub, out_dir / f"{leaf}={slug(value)}"))
-    sweep_rows = []
-    for value, run_cfg, run_out in runs:
-        if value is not None:
-            out.print(f"[bold]{cfg.sweep.key if cfg.sweep else ''} = {value}[/]")
-        res = run_benchmark(
-            run_cfg,
-            names,
-            trials=trials,
-            seed=seed,
-            progress=not quiet,
-            backend=backend,
-            workers=workers,
-        )
-        write_bench(res, run_out)
-        sweep_rows += [[value, *row] for row in summary_rows(res)]
+    def show(folder: Path) -> None:
         # raw markdown, unwrapped: a narrow terminal must not truncate the numbers
         out.print(
-            (run_out / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False
+            (folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False
         )
-        out.print(f"wrote {run_out}/")
-    if cfg.sweep is not None:
-        atomic_write_csv(
-            out_dir / "sweep_summary.csv", (cfg.sweep.key, *SUMMARY_COLUMNS), sweep_rows
-        )
-        out.print(f"wrote {out_dir / 'sweep_summary.csv'}")
+        out.print(f"wrote {folder}/")
+
+    try:
+        if cfg.sweep is None:
+            write_bench(run_benchmark(cfg, named, **bench), out_dir)  # type: ignore[arg-type]
+            show(out_dir)
+            return
+        key = cfg.sweep.key
+        cases = sweep_cases(config, list(set_ or []), cfg)
+
+        def on_case(case: CaseRun, folder: Path) -> None:
+            out.print(f"[bold]{key} = {case.label}[/]")
+            show(folder)
+
+        summary = run_sweep(cases, key, named, out_dir, on_case=on_case, **bench)  # type: ignore[arg-type]
+    except (ConfigError, MethodOutputError) as exc:
+        raise _fail(str(exc)) from None
+    out.print(f"wrote {summary}")
 
 
 @app.command("study")
 def study_cmd(
-    study: Annotated[Path, typer.Argument(help="Study file (configs/studies/*.yaml).")],
+    study: Annotated[str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")],
     out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
         "results/study"
     ),
@@ -158,7 +176,9 @@ def study_cmd(
 
 @app.command("train")
 def train_cmd(
-    config: Annotated[Path, typer.Argument(help="Training config (configs/train_*.yaml).")],
+    config: Annotated[
+        str, typer.Argument(help="Training config: a preset name (train_ppo) or a YAML path.")
+    ],
     out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
         "results/train"
     ),
@@ -167,7 +187,8 @@ def train_cmd(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Train the agent named in the config; saves model.zip / model.npz and config.yaml."""
-    from agents.training import load_train_config, train
+    from agents.config import load_train_config
+    from agents.training import train
 
     sets = list(set_ or []) + ([f"seed={seed}"] if seed is not None else [])
     try:
@@ -192,9 +213,8 @@ def evaluate_cmd(
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
-    """Filter Monte Carlo trials with the policy's κ; writes the SPEC §8 files."""
-    from agents.training import Policy
-    from envs.transfer_alignment import resolve_scenario
+    """Filter Monte Carlo trials with the policy's κ; writes the files of ``qkf bench``."""
+    from agents.policy import Policy
     from qkf.transfer_alignment.benchmark import run_benchmark
     from qkf.transfer_alignment.report import write_bench
 
@@ -204,7 +224,7 @@ def evaluate_cmd(
         raise _fail("--trials must be at least 1")
     try:
         policy = Policy(model)
-        cfg = resolve_scenario(scenario or policy.cfg.scenario, list(set_ or []))
+        cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
     except ConfigError as exc:
         raise _fail(str(exc)) from None
     res = run_benchmark(cfg, [f"policy:{model}"], trials=trials, seed=seed, progress=not quiet)

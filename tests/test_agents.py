@@ -9,8 +9,10 @@ import pytest
 from typer.testing import CliRunner
 
 from agents.common.vec_env import TransferAlignmentVecEnv
+from agents.config import load_train_config
+from agents.policy import Policy
 from agents.tabular import TabularQAgent, train_tabular
-from agents.training import Policy, load_train_config, train
+from agents.training import train
 from envs import TransferAlignmentEnv
 from qkf.cli import app
 from qkf.transfer_alignment.config import ConfigError

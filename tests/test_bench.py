@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import csv
+import importlib
 from pathlib import Path
 
 import numpy as np
-import pytest
 from typer.testing import CliRunner
 
-from qkf.transfer_alignment import benchmark
 from qkf.cli import app
+from qkf.transfer_alignment.methods import METHODS
 from qkf.transfer_alignment.report import SUMMARY_COLUMNS
 from qkf.transfer_alignment.states import STATE_COLUMNS
 from tests.conftest import CONFIGS
@@ -97,17 +97,21 @@ def test_same_seed_same_numbers(tmp_path: Path) -> None:
     assert kf_rows != (tmp_path / "c/rms.csv").read_text().splitlines()[1:]
 
 
-def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    calls = {"n": 0}
-    real = benchmark.METHODS["kf"]
+_CALLS = {"n": 0}
 
-    def flaky(cfg, data):  # type: ignore[no-untyped-def]
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise RuntimeError("boom")
-        return real(cfg, data)
 
-    monkeypatch.setitem(benchmark.METHODS, "kf", flaky)
+def flaky_kf(cfg, data):  # type: ignore[no-untyped-def]
+    """A user method (``tests.test_bench:flaky_kf``) that fails on its second chunk."""
+    _CALLS["n"] += 1
+    if _CALLS["n"] == 2:
+        raise RuntimeError("boom")
+    return METHODS["kf"](cfg, data)
+
+
+def test_a_failing_run_writes_nothing(tmp_path: Path) -> None:
+    # the spec imports this file as ``tests.test_bench``, not necessarily pytest's module object
+    calls = importlib.import_module("tests.test_bench")._CALLS
+    calls["n"] = 0
     out = tmp_path / "out"
     args = [
         "bench",
@@ -117,9 +121,12 @@ def test_a_failing_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.Monkey
         "--out",
         str(out),
         "--quiet",
+        "--methods",
+        "tests.test_bench:flaky_kf",
         *SHORT,
     ]
     result = runner.invoke(app, args)
+    assert calls["n"] == 2  # the first chunk ran, the second failed
     assert result.exit_code != 0
     assert not out.exists()
 

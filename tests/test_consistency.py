@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from qkf.core.stats import nees as nees_fn
 from qkf.transfer_alignment.crlb import crlb
 from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
-from qkf.transfer_alignment.metrics import nees as nees_fn
 from qkf.transfer_alignment.metrics import state_errors
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with

@@ -10,7 +10,8 @@ from qkf.core import units
 from qkf.transfer_alignment.crlb import crlb
 from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
 from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
-from qkf.transfer_alignment.scenario import TruthParams, simulate, true_rates
+from qkf.transfer_alignment.params import TruthParams
+from qkf.transfer_alignment.scenario import simulate, true_rates
 from tests.conftest import cfg_with
 
 

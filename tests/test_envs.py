@@ -31,7 +31,7 @@ def test_env_checkers_pass_without_warnings(kwargs: dict[str, str]) -> None:
 
 def test_registration() -> None:
     env = gym.make(ENV_ID, scenario="thermal_snap")
-    assert env.spec is not None and env.spec.max_episode_steps == 360
+    assert env.unwrapped.episode_steps == 360  # type: ignore[attr-defined]
     assert isinstance(env.unwrapped, TransferAlignmentEnv)
     assert env.unwrapped.cfg.name == "thermal-snap"
     assert env.action_space == gym.spaces.Discrete(11)
@@ -126,3 +126,45 @@ def test_step_before_reset_is_an_error() -> None:
 
 def test_module_exports() -> None:
     assert envs.ENV_ID == ENV_ID
+
+
+def test_episode_length_follows_the_config_for_make_and_make_vec() -> None:
+    """A 7200-s scenario with a 20-s decision period: 360 steps in both front ends, the same
+    rewards step for step, and truncation exactly at the end."""
+    kw = {"overrides": ["scenario.duration_s=7200"], "period_s": 20.0}
+    env = gym.make(ENV_ID, **kw)
+    vec = gym.make_vec(ENV_ID, num_envs=1, vectorization_mode="vector_entry_point", **kw)
+    env.reset(seed=5)
+    vec.reset(seed=5)
+    assert env.unwrapped.episode_steps == 360  # type: ignore[attr-defined]
+    steps = 0
+    while True:
+        steps += 1
+        _, r, term, trunc, _ = env.step(5)
+        _, rv, tv, trv, _ = vec.step(np.array([5]))
+        assert r == rv[0] and term == tv[0] and trunc == trv[0]
+        if term or trunc:
+            break
+    assert steps == 360 and trunc and not term
+
+
+def test_render_mode() -> None:
+    assert gym.make(ENV_ID, render_mode=None, overrides=SHORT).render_mode is None
+    with pytest.raises(ValueError, match="not supported"):
+        TransferAlignmentEnv(render_mode="human", overrides=SHORT)
+
+
+def test_a_registered_reward_is_usable_by_name() -> None:
+    from envs.rewards import REWARDS, Reward
+
+    def minus_nis(o):  # type: ignore[no-untyped-def]
+        return -o.period_mean(np.nan_to_num(o.record.nis_att))
+
+    if "test-minus-nis" not in REWARDS:
+        REWARDS.register("test-minus-nis", Reward(minus_nis, "minus the attitude NIS"))
+    env = TransferAlignmentEnv(reward="test-minus-nis", overrides=SHORT)
+    env.reset(seed=0)
+    _, r, *_ = env.step(5)
+    assert r < 0.0
+    with pytest.raises(ValueError, match="unknown reward 'nosuch'"):
+        TransferAlignmentEnv(reward="nosuch", overrides=SHORT)

@@ -12,7 +12,11 @@ from qkf.transfer_alignment.methods import METHODS
 from qkf.transfer_alignment.methods.fixed import tuned_kappa
 from qkf.transfer_alignment.methods.mmae import combine, update_log_weights
 from qkf.transfer_alignment.methods.qlearning import greedy_switch, q_update, run_qkf
-from qkf.transfer_alignment.methods.sage_husa import forgetting_weights, run_sage_husa, sage_husa_step
+from qkf.transfer_alignment.methods.sage_husa import (
+    forgetting_weights,
+    run_sage_husa,
+    sage_husa_step,
+)
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
 
@@ -94,8 +98,8 @@ def test_qkf_first_period_by_hand() -> None:
     kappas = np.asarray(cfg.adaptive.actions.values())
     s0 = 5
     assert kappas[s0] == pytest.approx(1.0)
-    assert np.all(out.extras["kappa_index"][:, 0] == s0)
-    a0 = out.extras["action"][:, 0]
+    assert np.all(out.logs["kappa_index"][:, 0] == s0)
+    a0 = out.logs["action"][:, 0]
     params = FilterParams.from_config(cfg)
     main = TransferAlignmentKF(params, 2)
     main.initialize(data.ads_q[:, 0])
@@ -104,7 +108,7 @@ def test_qkf_first_period_by_hand() -> None:
     ll_m = rec_m.loglik.sum(axis=1)
     ll_e = explore.step_data(data, 0, 10, kappa=kappas[a0]).loglik.sum(axis=1)
     r = (ll_e - ll_m) / 10.0
-    np.testing.assert_allclose(out.extras["reward"][:, 0], r, rtol=1e-12)
+    np.testing.assert_allclose(out.logs["reward"][:, 0], r, rtol=1e-12)
     np.testing.assert_array_equal(out.est[:, :10], rec_m.est)  # the output is the main filter
     # Q(s0, a0) after the first update is α r (the table started at zero) unless a0 came back
     table = np.zeros((2, 11, 11))
@@ -113,7 +117,7 @@ def test_qkf_first_period_by_hand() -> None:
         assert table[i, s0, a0[i]] == pytest.approx(0.1 * r[i])
     # reproducible per trial: trial 1 alone gives the same choices
     alone = run_qkf(cfg, simulate(cfg, 3, [1]))
-    np.testing.assert_array_equal(alone.extras["action"][0], out.extras["action"][1])
+    np.testing.assert_array_equal(alone.logs["action"][0], out.logs["action"][1])
     np.testing.assert_array_equal(alone.est[0], out.est[1])
 
 
@@ -161,7 +165,7 @@ def test_sage_husa_q_stays_finite_and_positive(preset: str) -> None:
     cfg = cfg_with(base=f"{preset}.yaml")
     data = simulate(cfg, 17, 20)
     out = run_sage_husa(cfg, data)
-    kappa = out.extras["kappa"]  # (B, N, 9): the adapted diagonal Q̂ / (q_p0 Δt)
+    kappa = out.logs["kappa_terms"]  # (B, N, 9): the adapted diagonal Q̂ / (q_p0 Δt)
     assert np.all(np.isfinite(kappa))
     lo, hi = min(cfg.adaptive.actions.values()), max(cfg.adaptive.actions.values())
     assert np.all(kappa >= lo * (1 - 1e-12)) and np.all(kappa <= hi * (1 + 1e-12))
@@ -192,5 +196,5 @@ def test_sage_husa_learns_the_true_attitude_noise(true_arcsec: float) -> None:
         "scenario.duration_s=1200",
     )
     out = run_sage_husa(cfg, simulate(cfg, 4, 8))
-    learned = out.extras["sigma_a"][:, -300:].mean() / units.ARCSEC
+    learned = out.logs["sigma_a"][:, -300:].mean() / units.ARCSEC
     assert learned == pytest.approx(true_arcsec, rel=0.15)

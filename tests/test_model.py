@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from qkf.core import units
+from qkf.core.so3 import exp_matrix, left_jacobian, rodrigues_coefficients
 from qkf.transfer_alignment.model import (
     calibration_matrix,
     discretize,
@@ -18,7 +19,6 @@ from qkf.transfer_alignment.model import (
     process_noise_density,
     rate_estimate,
 )
-from qkf.core.so3 import exp_matrix, left_jacobian, rodrigues_coefficients
 
 # state scales (prior sigmas) for comparing matrices in well-scaled units
 D = np.array([60 * units.ARCSEC] * 3 + [2 * units.DEG_PER_H] * 3 + [1500 * units.PPM] * 9)

@@ -16,8 +16,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from envs.episodes import RewardKind
-from envs.transfer_alignment import Driver
+from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
 from qkf.transfer_alignment.config import Config
 
 
@@ -29,10 +28,11 @@ class TransferAlignmentVecEnv(VecEnv):
         num_envs: int,
         scenario: str | Path | Config = "paper",
         action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: RewardKind = "likelihood",
+        reward: str = "likelihood",
         overrides: list[str] | None = None,
+        period_s: float = DEFAULT_PERIOD_S,
     ) -> None:
-        self._driver = Driver(num_envs, scenario, action_type, reward, overrides)
+        self._driver = EpisodeDriver(num_envs, scenario, action_type, reward, overrides, period_s)
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
         self.render_mode = None

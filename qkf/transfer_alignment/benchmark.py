@@ -1,29 +1,38 @@
-"""Monte Carlo benchmark of filters on a scenario: config → scenario → filter → metrics → report.
+"""Monte Carlo benchmark of methods on a scenario: config → scenario → method → metrics → report.
 
-Trials are simulated in chunks (``run.chunk_trials``); every method sees the same simulated
-data (paired comparison), and trial ``i`` is the same whatever the chunking. Results are held
-in memory and written only when the run has finished (atomically, see ``qkf.core.io``).
+Trials are simulated in chunks (``run.chunk_trials``) by the runner of
+:mod:`qkf.core.montecarlo`; every method sees the same simulated data (paired comparison), and
+trial ``i`` is the same whatever the chunking or the backend. Methods are prepared once in this
+process (:func:`~qkf.transfer_alignment.methods.prepare`), and each output is validated as soon
+as a chunk returns it, so a malformed method stops the run before anything is written. Results
+are held in memory; :mod:`qkf.transfer_alignment.report` writes them.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import os
 import time
-from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from functools import partial
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
+from qkf.core.stats import ErrorAccumulator
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
-from qkf.transfer_alignment.methods import METHODS, MethodOutput, resolve_method
-from qkf.transfer_alignment.methods.base import action_values, decision_period
-from qkf.transfer_alignment.metrics import ErrorAccumulator, state_errors, summarize
-from qkf.transfer_alignment.scenario import n_epochs, simulate
+from qkf.transfer_alignment.methods import (
+    BUILTIN_METHODS,
+    MethodSpecError,
+    NamedMethod,
+    prepare,
+    resolve_method,
+    validate_output,
+)
+from qkf.transfer_alignment.methods.base import decision_steps
+from qkf.transfer_alignment.metrics import state_errors, summarize
+from qkf.transfer_alignment.params import n_epochs
+from qkf.transfer_alignment.scenario import simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 
@@ -35,7 +44,7 @@ class MethodResult:
     diverged: int
     runtime_s: float
     summary: dict[str, float] = field(default_factory=dict)  # display units
-    kappa: np.ndarray | None = None  # (trials, T) κ in use at the decision times
+    kappa: np.ndarray | None = None  # (trials, T) κ in use at the sampling times
     notes: dict[str, str] = field(default_factory=dict)
 
 
@@ -50,37 +59,32 @@ class BenchResult:
     kappa_t: np.ndarray  # (T,) s, the times at which κ traces are sampled
 
 
-def kappa_trace(cfg: Config, out: MethodOutput, n: int, period: int) -> np.ndarray | None:
-    """κ in use per trial at every ``period``-th epoch (B, T), for the plots and kappa.csv.
+def kappa_sampling(cfg: Config) -> int:
+    """Epochs between the κ samples of ``kappa.csv`` and the κ plot (the QKF's period)."""
+    return decision_steps(cfg.adaptive.qkf.period_s, cfg.scenario.dt_s)
 
-    Per-term κ (Sage–Husa) is summarised by its geometric mean, a bank (MMAE) by the
-    probability-weighted geometric mean; fixed-κ methods return None.
+
+def parse_methods(spec: str | list[str]) -> list[NamedMethod]:
+    """Resolve ``"kf,qkf"`` (or ``"all"``: the built-in methods) into named methods.
+
+    Raises ``ValueError`` (a :class:`MethodSpecError`) for a spec that cannot be resolved.
     """
-    idx = np.arange(0, n, period)
-    if "kappa_index" in out.extras:
-        return action_values(cfg)[out.extras["kappa_index"]]
-    if "kappa" in out.extras:
-        return np.exp(np.mean(np.log(out.extras["kappa"][:, idx]), axis=-1))
-    if "weights" in out.extras:
-        return np.exp(out.extras["weights"][:, idx] @ np.log(action_values(cfg)))
-    return None
-
-
-def _is_policy(name: str) -> bool:
-    return name.startswith("policy:") and Path(name[len("policy:") :]).is_file()
-
-
-def parse_methods(spec: str | list[str]) -> list[str]:
-    """Split ``"kf,qkf"`` (or ``"all"``) into method names; ``ValueError`` for unknown ones."""
     if spec == "all":
-        return list(METHODS)
+        spec = list(BUILTIN_METHODS)
     names = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
     if not names:
-        raise ValueError("no method given")
-    unknown = [m for m in names if m not in METHODS and not _is_policy(m)]
-    if unknown:
-        raise ValueError(f"unknown method(s) {', '.join(unknown)}; known: {', '.join(METHODS)}")
-    return names
+        raise MethodSpecError("no method given")
+    return _unique([resolve_method(m) for m in names])
+
+
+def _unique(named: list[NamedMethod]) -> list[NamedMethod]:
+    labels = [m.name for m in named]
+    twice = sorted({n for n in labels if labels.count(n) > 1})
+    if twice:
+        raise MethodSpecError(
+            f"method {', '.join(twice)} given twice (use LABEL=SPEC to run one under two names)"
+        )
+    return named
 
 
 @dataclass
@@ -95,78 +99,27 @@ class ChunkResult:
     notes: dict[str, dict[str, str]]
 
 
-def run_chunk(cfg: Config, methods: list[str], seed: int, ids: np.ndarray) -> ChunkResult:
+def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarray) -> ChunkResult:
     """Simulate trials ``ids`` and run every method on them (the unit of work of a backend)."""
     n = n_epochs(cfg.scenario)
-    period = decision_period(cfg)
+    sample = np.arange(0, n, kappa_sampling(cfg))
     data = simulate(cfg, seed, ids)
     res = ChunkResult({}, ids.size, {}, {}, {}, {})
     for m in methods:
         t0 = time.perf_counter()
-        out = resolve_method(m)(cfg, data)
-        res.runtime_s[m] = time.perf_counter() - t0
+        out = validate_output(m.method(cfg, data), m.name, data.n_trials, n)
+        res.runtime_s[m.name] = time.perf_counter() - t0
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
-        res.sum_sq[m] = np.sum(err * err, axis=0)
-        res.diverged[m] = int(np.count_nonzero(out.diverged))
-        res.kappa[m] = kappa_trace(cfg, out, n, period)
-        res.notes[m] = dict(out.notes)
+        res.sum_sq[m.name] = np.sum(err * err, axis=0)
+        res.diverged[m.name] = int(np.count_nonzero(out.diverged))
+        res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
+        res.notes[m.name] = dict(out.notes)
     return res
-
-
-def _single_thread_worker() -> None:
-    # each process is one worker: numba's own threads would oversubscribe the cores
-    import numba
-
-    numba.set_num_threads(1)
-
-
-def _chunk_results(
-    cfg: Config, methods: list[str], seed: int, chunks: list[np.ndarray], backend: str, workers: int
-) -> Iterator[ChunkResult]:
-    """Chunk results in chunk order, whatever order the backend finishes them in."""
-    if backend == "local" and workers <= 1:
-        for ids in chunks:
-            yield run_chunk(cfg, methods, seed, ids)
-    elif backend == "local":
-        # spawn, not fork: the parent's numba threads (OpenMP) do not survive a fork
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(
-            workers, mp_context=ctx, initializer=_single_thread_worker
-        ) as pool:
-            futures = [pool.submit(run_chunk, cfg, methods, seed, ids) for ids in chunks]
-            for fut in futures:
-                yield fut.result()
-    elif backend == "ray":
-        yield from _ray_chunk_results(cfg, methods, seed, chunks)
-    else:
-        raise ValueError(f"unknown backend {backend!r}: local or ray")
-
-
-def _ray_chunk_results(
-    cfg: Config, methods: list[str], seed: int, chunks: list[np.ndarray]
-) -> Iterator[ChunkResult]:
-    try:
-        import ray
-    except ImportError:  # pragma: no cover - depends on the extra
-        raise RuntimeError("the ray backend needs the extra: pip install -e '.[ray]'") from None
-    started_here = not ray.is_initialized()
-    if started_here:
-        address = cfg.run.ray_address or os.environ.get("RAY_ADDRESS")
-        # no address: a local cluster on this machine
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    try:
-        task = ray.remote(num_cpus=1)(run_chunk)
-        refs = [task.remote(cfg, methods, seed, ids) for ids in chunks]
-        for ref in refs:
-            yield ray.get(ref)
-    finally:
-        if started_here:
-            ray.shutdown()
 
 
 def run_benchmark(
     cfg: Config,
-    methods: list[str],
+    methods: str | Sequence[str | NamedMethod],
     trials: int | None = None,
     seed: int | None = None,
     progress: bool = True,
@@ -175,45 +128,42 @@ def run_benchmark(
 ) -> BenchResult:
     """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario.
 
+    ``methods``: specs (``"kf,qkf"``, ``["kf", "mypkg.mod:run"]``) or resolved methods
+    (:class:`NamedMethod`), in any mix.
     ``backend``: ``local`` (in this process when ``workers`` is 1, else a process pool) or
-    ``ray`` (one Ray task per chunk; ``run.ray_address`` or ``RAY_ADDRESS``, else a local
-    cluster). Chunks are combined in chunk order, so every backend gives the same numbers.
+    ``ray``; chunks are combined in chunk order, so every backend gives the same numbers.
     """
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
     workers = cfg.run.workers if workers is None else workers
     if trials < 1:
         raise ValueError("trials must be at least 1")
-    methods = parse_methods(methods)
+    named = (
+        parse_methods(methods)
+        if isinstance(methods, str)
+        else [m if isinstance(m, NamedMethod) else resolve_method(m) for m in methods]
+    )
+    labels = [m.name for m in _unique(named)]
+    prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
     n = n_epochs(cfg.scenario)
-    period = decision_period(cfg)
-    acc = {m: ErrorAccumulator(n) for m in methods}
-    runtime = dict.fromkeys(methods, 0.0)
-    kappas: dict[str, list[np.ndarray]] = {m: [] for m in methods}
-    notes: dict[str, dict[str, str]] = {m: {} for m in methods}
-    chunk = cfg.run.chunk_trials
-    chunks = [np.arange(lo, min(trials, lo + chunk)) for lo in range(0, trials, chunk)]
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("trials"),
-        TimeElapsedColumn(),
-        disable=not progress,
-        transient=False,
-    ) as bar:
-        task = bar.add_task(f"{', '.join(methods)} ({backend})", total=trials)
-        for res in _chunk_results(cfg, methods, seed, chunks, backend, workers):
-            for m in methods:
+    acc = {m: ErrorAccumulator(n) for m in labels}
+    runtime = dict.fromkeys(labels, 0.0)
+    kappas: dict[str, list[np.ndarray]] = {m: [] for m in labels}
+    notes: dict[str, dict[str, str]] = {m: {} for m in labels}
+    task = partial(run_chunk, cfg, prepared, seed)
+    chunks = chunk_ids(trials, cfg.run.chunk_trials)
+    with progress_bar(trials, f"{', '.join(labels)} ({backend})", progress) as advance:
+        for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
+            for m in labels:
                 acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
                 runtime[m] += res.runtime_s[m]
                 trace = res.kappa[m]
                 if trace is not None:
                     kappas[m].append(trace)
                 notes[m].update(res.notes[m])
-            bar.advance(task, res.count)
+            advance(res.count)
     results = []
-    for m in methods:
+    for m in labels:
         rms = acc[m].rms()
         results.append(
             MethodResult(
@@ -234,5 +184,5 @@ def run_benchmark(
         t=np.arange(n) * cfg.scenario.dt_s,
         methods=results,
         bound=crlb(cfg),
-        kappa_t=np.arange(0, n, period) * cfg.scenario.dt_s,
+        kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
     )

@@ -1,8 +1,9 @@
-"""Configuration: YAML presets validated with pydantic, in display units (SPEC §1–§2).
+"""Configuration of the transfer-alignment problem: the YAML schema, in display units.
 
-Values in a config carry their unit in their name (``rate_deg_s``, ``attitude_sigma_arcsec``);
-``qkf.transfer_alignment.scenario`` and ``qkf.transfer_alignment.filter`` convert to SI. Unknown keys are errors, so a typo never
-silently falls back to a default.
+Values carry their unit in their name (``rate_deg_s``, ``attitude_sigma_arcsec``);
+:mod:`qkf.transfer_alignment.params` converts them to SI. The schema is strict (unknown keys are
+errors); the machinery (YAML, ``--set`` overrides, messages naming file and field) is
+:mod:`qkf.core.config`. The meaning of every section is in docs/models.md and docs/methods.md.
 """
 
 from __future__ import annotations
@@ -10,22 +11,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
-PositiveFloat = Annotated[float, Field(gt=0.0)]
-NonNegativeFloat = Annotated[float, Field(ge=0.0)]
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot be used; the message names the file and the field."""
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+from qkf.core import presets
+from qkf.core.config import (
+    ConfigError,
+    NonNegativeFloat,
+    PositiveFloat,
+    StrictModel,
+    apply_override,
+    load_model,
+)
 
 
-class Maneuver(_Strict):
+class Maneuver(StrictModel):
     """A constant-rate rotation added to the orbit rate over ``[start_s, start_s + duration_s)``."""
 
     start_s: NonNegativeFloat
@@ -34,7 +33,7 @@ class Maneuver(_Strict):
     rate_deg_s: float
 
 
-class TimeWindow(_Strict):
+class TimeWindow(StrictModel):
     start_s: NonNegativeFloat
     end_s: NonNegativeFloat
 
@@ -51,14 +50,14 @@ class WalkSegment(TimeWindow):
     sigma_per_sqrt_s: NonNegativeFloat
 
 
-class CalibrationWalk(_Strict):
+class CalibrationWalk(StrictModel):
     """Random walk of the true calibration vector: ``p_{k+1} = p_k + N(0, σ(t)² Δt)``."""
 
     sigma_per_sqrt_s: NonNegativeFloat = 0.0
     segments: list[WalkSegment] = Field(default_factory=list)
 
 
-class CalibrationJump(_Strict):
+class CalibrationJump(StrictModel):
     """A step change of the true calibration at ``t_s``, added to every term of the group."""
 
     t_s: NonNegativeFloat
@@ -66,12 +65,12 @@ class CalibrationJump(_Strict):
     scale_factor_ppm: float = 0.0
 
 
-class GyroNoise(_Strict):
+class GyroNoise(StrictModel):
     arw_deg_sqrt_h: PositiveFloat = 4.0e-4
     rrw_deg_h_1_5: PositiveFloat = 1.0e-3
 
 
-class Truth(_Strict):
+class Truth(StrictModel):
     bias_degph: tuple[float, float, float] = (1.0, -0.8, 0.6)
     scale_factor_ppm: tuple[float, float, float] = (300.0, -200.0, 250.0)
     misalignment_urad: tuple[float, float, float, float, float, float] = (
@@ -84,7 +83,7 @@ class Truth(_Strict):
     )
 
 
-class Ads(_Strict):
+class Ads(StrictModel):
     """The master's attitude determination system, as it really is (truth side)."""
 
     attitude_sigma_arcsec: PositiveFloat = 3.0
@@ -100,7 +99,7 @@ def _default_maneuvers() -> list[Maneuver]:
     ]
 
 
-class Scenario(_Strict):
+class Scenario(StrictModel):
     dt_s: PositiveFloat = 1.0
     duration_s: PositiveFloat = 3600.0
     altitude_km: PositiveFloat = 700.0
@@ -119,13 +118,13 @@ class Scenario(_Strict):
         return self
 
 
-class InitialSigma(_Strict):
+class InitialSigma(StrictModel):
     attitude_arcsec: PositiveFloat = 60.0
     bias_degph: PositiveFloat = 2.0
     calibration_ppm: PositiveFloat = 1500.0
 
 
-class FilterConfig(_Strict):
+class FilterConfig(StrictModel):
     """What the filter assumes. Noise values left out default to the scenario's true ones."""
 
     matching: Literal["attitude", "attitude_rate"] = "attitude_rate"
@@ -139,7 +138,7 @@ class FilterConfig(_Strict):
     rate_noise_correlation: bool = True
 
 
-class RunConfig(_Strict):
+class RunConfig(StrictModel):
     trials: Annotated[int, Field(ge=1)] = 20
     seed: Annotated[int, Field(ge=0)] = 0
     kappa: PositiveFloat = 1.0
@@ -148,7 +147,7 @@ class RunConfig(_Strict):
     ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
 
 
-class ActionSet(_Strict):
+class ActionSet(StrictModel):
     """The process-noise factors κ_i = 10^(log10_min + i · log10_step), i = 0 … count − 1."""
 
     log10_min: float = -2.0
@@ -158,16 +157,20 @@ class ActionSet(_Strict):
     def values(self) -> list[float]:
         return [10.0 ** (self.log10_min + i * self.log10_step) for i in range(self.count)]
 
+    def nominal_index(self) -> int:
+        """Index of the action closest to κ = 1 (where adaptive methods and episodes start)."""
+        return min(range(self.count), key=lambda i: abs(self.log10_min + i * self.log10_step))
 
-class SageHusaConfig(_Strict):
+
+class SageHusaConfig(StrictModel):
     forgetting: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.97
     adapt_r: bool = False  # also estimate the attitude measurement noise
     r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
     r_warmup_s: Annotated[float, Field(ge=0.0)] = 100.0  # adapt R only once P has settled
 
 
-class QkfConfig(_Strict):
-    """Online Q-learning Kalman filter (SPEC §3)."""
+class QkfConfig(StrictModel):
+    """Online Q-learning Kalman filter (docs/methods.md)."""
 
     period_s: PositiveFloat = 10.0
     epsilon_start: Annotated[float, Field(ge=0.0, le=1.0)] = 0.2
@@ -177,18 +180,18 @@ class QkfConfig(_Strict):
     gamma: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.9
 
 
-class MmaeConfig(_Strict):
+class MmaeConfig(StrictModel):
     weight_floor: Annotated[float, Field(ge=0.0, lt=0.1)] = 1e-6
 
 
-class TunedConfig(_Strict):
+class TunedConfig(StrictModel):
     """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
 
     trials: Annotated[int, Field(ge=1)] = 8
     seed: Annotated[int, Field(ge=0)] = 1_000_003
 
 
-class AdaptiveConfig(_Strict):
+class AdaptiveConfig(StrictModel):
     actions: ActionSet = ActionSet()
     sage_husa: SageHusaConfig = SageHusaConfig()
     qkf: QkfConfig = QkfConfig()
@@ -196,14 +199,14 @@ class AdaptiveConfig(_Strict):
     tuned: TunedConfig = TunedConfig()
 
 
-class Sweep(_Strict):
+class Sweep(StrictModel):
     """A study over one config value: the benchmark runs once per value."""
 
     key: str
     values: list[Any] = Field(min_length=1)
 
 
-class Config(_Strict):
+class Config(StrictModel):
     name: str = "custom"
     description: str = ""
     scenario: Scenario = Scenario()
@@ -213,95 +216,16 @@ class Config(_Strict):
     sweep: Sweep | None = None
 
 
-def _parse_override(item: str) -> tuple[list[str], Any]:
-    if "=" not in item:
-        raise ConfigError(f"--set {item!r}: expected dotted.key=value")
-    key, raw = item.split("=", 1)
-    parts = [p for p in key.strip().split(".") if p]
-    if not parts:
-        raise ConfigError(f"--set {item!r}: empty key")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"--set {item!r}: cannot parse value: {exc}") from exc
-    return parts, value
-
-
-def apply_override(data: dict[str, Any], item: str) -> None:
-    """Apply one ``dotted.key=value`` override (value parsed as YAML) to a raw config dict."""
-    parts, value = _parse_override(item)
-    node: Any = data
-    for i, part in enumerate(parts[:-1]):
-        if isinstance(node, list):
-            node = node[_list_index(part, node, item)]
-            continue
-        if part not in node or node[part] is None:
-            # Create intermediate mappings; validation then rejects keys that do not exist.
-            node[part] = {}
-        elif not isinstance(node[part], dict | list):
-            raise ConfigError(f"--set {item!r}: {'.'.join(parts[: i + 1])} is not a mapping")
-        node = node[part]
-    last = parts[-1]
-    if isinstance(node, list):
-        node[_list_index(last, node, item)] = value
-    else:
-        node[last] = value
-
-
-def _list_index(part: str, node: list[Any], item: str) -> int:
-    if not part.lstrip("-").isdigit() or not -len(node) <= int(part) < len(node):
-        raise ConfigError(f"--set {item!r}: {part!r} is not an index of a list of {len(node)}")
-    return int(part)
-
-
-def _format_validation(source: str, exc: ValidationError) -> str:
-    lines = []
-    for err in exc.errors():
-        loc = ".".join(str(x) for x in err["loc"]) or "(top level)"
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        lines.append(f"{source}: {loc}: {msg}")
-    return "invalid configuration\n  " + "\n  ".join(lines)
-
-
-def _as_defaults(cfg: Config) -> dict[str, Any]:
-    return cfg.model_dump(mode="json")
-
-
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
-    """Read and validate a YAML config, then apply ``--set`` style overrides.
+    """Read and validate a config — a path or a preset name (``thermal_snap``) — then apply
+    ``--set`` style overrides. Raises :class:`ConfigError` naming the file and the field."""
+    if path is None:
+        return load_model(Config, None, overrides)
+    resolved = presets.resolve(path)
+    if not resolved.exists() and presets.is_preset_name(path):
+        known = ", ".join(presets.preset_names())
+        raise ConfigError(f"{path}: no such config file or preset (presets: {known})")
+    return load_model(Config, resolved, overrides)
 
-    Raises ``ConfigError`` with the file and field named when anything is wrong.
-    """
-    source = str(path) if path is not None else "<defaults>"
-    data: dict[str, Any] = {}
-    if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"{source}: no such config file")
-        try:
-            loaded = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{source}: not valid YAML: {exc}") from exc
-        if loaded is None:
-            loaded = {}
-        if not isinstance(loaded, dict):
-            raise ConfigError(f"{source}: top level must be a mapping")
-        data = loaded
-    try:
-        Config.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(_format_validation(source, exc)) from None
-    if overrides:
-        # Overrides act on the fully populated config so that list items (maneuvers.1...)
-        # and nested defaults can be addressed even when the file left them out.
-        merged = _as_defaults(Config.model_validate(data))
-        for item in overrides:
-            apply_override(merged, item)
-        data = merged
-        source = f"{source} (with --set)"
-    try:
-        return Config.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(_format_validation(source, exc)) from None
+
+__all__ = ["Config", "ConfigError", "apply_override", "load_config"]

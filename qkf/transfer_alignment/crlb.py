@@ -1,8 +1,8 @@
-r"""Posterior Cramér–Rao lower bound of the transfer-alignment problem (SPEC §4).
+r"""Posterior Cramér–Rao lower bound of the transfer-alignment problem (docs/models.md).
 
 The system linearised along the *true* trajectory (``F``, ``H`` at the true ``ω`` and ``p``;
 true noise levels; the scenario's true ``q_p``, floored at 1e-20 /s) is linear and Gaussian, so
-its posterior Fisher information obeys the recursion of SPEC §4::
+its posterior Fisher information obeys the recursion::
 
     J_0 = P_0⁻¹,   J_k ← J_k + H_kᵀ R_k⁻¹ H_k,   J_{k+1} = (Q_k + Φ_k J_k⁻¹ Φ_kᵀ)⁻¹
 
@@ -21,11 +21,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.core import units
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.filter import FilterParams
 from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
-from qkf.transfer_alignment.scenario import TruthParams, calibration_walk_sigma, measurement_mask, true_rates
+from qkf.transfer_alignment.params import TruthParams, prior_sigma
+from qkf.transfer_alignment.scenario import (
+    calibration_jumps,
+    calibration_walk_sigma,
+    measurement_mask,
+    true_rates,
+)
 
 QP_FLOOR = 1e-20
 """Calibration process-noise density used when the truth has none, 1/s."""
@@ -41,26 +45,19 @@ class CrlbResult:
 def true_calibration_path(cfg: Config) -> np.ndarray:
     """The deterministic part of the true calibration vector per epoch (N, 9): truth + jumps."""
     tp = TruthParams.from_config(cfg)
-    t = np.arange(tp.n_epochs) * tp.dt
-    p = np.broadcast_to(tp.p0, (t.size, 9)).copy()
-    for j in cfg.scenario.calibration_jumps:
-        after = t >= j.t_s - 1e-9
-        p[after, 0:3] += j.scale_factor_ppm * units.PPM
-        p[after, 3:9] += j.misalignment_urad * units.URAD
-    return p
+    return tp.p0[None, :] + calibration_jumps(cfg.scenario)
 
 
 def crlb(cfg: Config, use_rate: bool | None = None) -> CrlbResult:
     """The bound for the scenario of ``cfg``; ``use_rate`` defaults to the filter's matching."""
     tp = TruthParams.from_config(cfg)
-    fp = FilterParams.from_config(cfg)
     if use_rate is None:
-        use_rate = fp.use_rate
+        use_rate = cfg.filter.matching == "attitude_rate"
     dt, n = tp.dt, tp.n_epochs
     w = true_rates(cfg.scenario)
     a = np.linalg.inv(np.eye(3) + calibration_matrix(true_calibration_path(cfg)))
     q_p = np.maximum(calibration_walk_sigma(cfg.scenario) ** 2, QP_FLOOR)
-    phi, qd = discretize(w, a, dt, tp.sigma_v, tp.sigma_u, q_p, fp.quadrature_nodes)
+    phi, qd = discretize(w, a, dt, tp.sigma_v, tp.sigma_u, q_p, cfg.filter.quadrature_nodes)
     h, r = measurement_model(w, a, dt, tp.sigma_a, tp.sigma_r, tp.sigma_v, use_rate)
     has_meas = measurement_mask(cfg.scenario)
     m = h.shape[1]
@@ -70,7 +67,7 @@ def crlb(cfg: Config, use_rate: bool | None = None) -> CrlbResult:
         c[:, 0:3, 3:6] = gamma @ a @ np.swapaxes(a, -1, -2) * (tp.sigma_v**2 / dt)
 
     # scaled units: x̃ = x / d, z̃ = z / e
-    d = fp.p0_sigma
+    d = prior_sigma(cfg)
     dd = d[:, None] * d[None, :]
     e = np.sqrt(np.diagonal(r, axis1=1, axis2=2))  # (N, m)
     p = np.eye(15)

@@ -1,4 +1,4 @@
-r"""Transfer-alignment Kalman filter: 15 error states, batched over trials (SPEC §2).
+r"""Transfer-alignment Kalman filter: 15 error states, batched over trials (docs/models.md).
 
 Each epoch ``k``, for every trial:
 
@@ -20,7 +20,7 @@ and the rate rows, the textbook correlated-noise prediction::
 
     x̂⁻_{k+1} = Φ x̂⁺_k + C S⁻¹ ν,   P⁻_{k+1} = Φ P⁺ Φᵀ + Q − Φ K Cᵀ − C Kᵀ Φᵀ − C S⁻¹ Cᵀ
 
-Switch it off to get SPEC §2's filter exactly as written.
+Switch it off (``filter.rate_noise_correlation: false``) for the uncorrelated filter.
 
 The process-noise factor ``κ`` may differ per trial and per epoch: adaptive filters and the
 Gymnasium environment drive it. A trial whose numbers go non-finite (or whose covariance loses
@@ -34,56 +34,27 @@ trials in parallel; the covariance is stored scaled by the prior sigmas.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from qkf.core import units
-from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.model import gauss_legendre
-from qkf.transfer_alignment.scenario import ScenarioData
+from qkf.transfer_alignment.params import FilterParams
 
 
-@dataclass(frozen=True)
-class FilterParams:
-    """What the filter assumes, in SI."""
-
-    dt: float
-    sigma_v: float  # rad/√s
-    sigma_u: float  # rad/s^1.5
-    sigma_a: float  # rad
-    sigma_r: float  # rad/s
-    qp0: float  # 1/s
-    use_rate: bool
-    p0_sigma: np.ndarray = field(repr=False)  # (15,) prior sigmas, SI
-    quadrature_nodes: int = 5
-    rate_noise_correlation: bool = True
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> FilterParams:
-        sc, fc = cfg.scenario, cfg.filter
-        init = fc.initial_sigma
-        return cls(
-            dt=sc.dt_s,
-            sigma_v=(fc.arw_deg_sqrt_h or sc.gyro.arw_deg_sqrt_h) * units.DEG_PER_SQRT_H,
-            sigma_u=(fc.rrw_deg_h_1_5 or sc.gyro.rrw_deg_h_1_5) * units.DEG_PER_H_1_5,
-            sigma_a=(fc.attitude_sigma_arcsec or sc.ads.attitude_sigma_arcsec) * units.ARCSEC,
-            sigma_r=(fc.rate_sigma_degph or sc.ads.rate_sigma_degph) * units.DEG_PER_H,
-            qp0=fc.qp0,
-            use_rate=fc.matching == "attitude_rate",
-            p0_sigma=np.array(
-                [init.attitude_arcsec * units.ARCSEC] * 3
-                + [init.bias_degph * units.DEG_PER_H] * 3
-                + [init.calibration_ppm * units.PPM] * 9
-            ),
-            quadrature_nodes=fc.quadrature_nodes,
-            rate_noise_correlation=fc.rate_noise_correlation,
-        )
+class SensorData(Protocol):
+    """What :meth:`TransferAlignmentKF.step_data` reads (a ``ScenarioData`` or recorded data)."""
 
     @property
-    def n_meas(self) -> int:
-        return 6 if self.use_rate else 3
+    def gyro(self) -> np.ndarray: ...  # (B, N, 3) rad/s
+    @property
+    def ads_q(self) -> np.ndarray: ...  # (B, N, 4) scalar-last
+    @property
+    def ads_rate(self) -> np.ndarray: ...  # (B, N, 3) rad/s
+    @property
+    def has_meas(self) -> np.ndarray: ...  # (N,) or (B, N) bool
 
 
 @dataclass
@@ -220,34 +191,36 @@ class TransferAlignmentKF:
         stats = np.empty((b, n, 5))
         p = self.params
         _ta_kernel.run_block(
-            self.q_hat,
-            self.b_hat,
-            self.p_hat,
-            self._pt,
-            self.diverged,
-            gyro,
-            ads_q,
-            ads_rate,
-            has_meas,
-            kap,
-            p.dt,
-            p.sigma_v,
-            p.sigma_u,
-            p.qp0,
-            np.ascontiguousarray(self.sigma_a, dtype=float),
-            p.sigma_r,
-            p.use_rate,
-            p.rate_noise_correlation,
-            self._d,
-            self._gl_s,
-            self._gl_w,
-            rec.est,
-            rec.var,
-            rec.cov if rec.cov is not None else np.empty((b, 0, 15, 15)),
-            rec.dx,
-            rec.innov,
-            stats,
-            rec.rate,
+            _ta_kernel.FilterState(self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged),
+            _ta_kernel.Inputs(
+                gyro=gyro,
+                ads_q=ads_q,
+                ads_rate=ads_rate,
+                has_meas=has_meas,
+                kappa=kap,
+                sigma_a=np.ascontiguousarray(self.sigma_a, dtype=float),
+            ),
+            _ta_kernel.Constants(
+                dt=float(p.dt),
+                sigma_v=float(p.sigma_v),
+                sigma_u=float(p.sigma_u),
+                qp0=float(p.qp0),
+                sigma_r=float(p.sigma_r),
+                use_rate=bool(p.use_rate),
+                correlated=bool(p.rate_noise_correlation),
+                d=self._d,
+                gl_s=self._gl_s,
+                gl_w=self._gl_w,
+            ),
+            _ta_kernel.Records(
+                est=rec.est,
+                var=rec.var,
+                cov=rec.cov if rec.cov is not None else np.empty((b, 0, 15, 15)),
+                dx=rec.dx,
+                innov=rec.innov,
+                stats=stats,
+                rate=rec.rate,
+            ),
         )
         rec.nis_att, rec.nis_rate, rec.nis, rec.logdet_s, rec.trace_s_att = (
             stats[..., i] for i in range(5)
@@ -256,7 +229,7 @@ class TransferAlignmentKF:
 
     def step_data(
         self,
-        data: ScenarioData,
+        data: SensorData,
         start: int,
         stop: int,
         kappa: float | np.ndarray = 1.0,

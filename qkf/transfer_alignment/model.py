@@ -1,4 +1,4 @@
-r"""Transfer-alignment error model (SPEC §0, §2), in numpy, batched over leading axes.
+r"""Transfer-alignment error model (docs/models.md), in numpy, batched over leading axes.
 
 Gyro model and calibration vector::
 
@@ -23,7 +23,7 @@ at most ``2|ω̂|``, so the quadrature error is of order ``(|ω̂|Δt)^(2m)/(2m)
 machine precision at the rates of a calibration manoeuvre (checked against Van Loan's method
 in the tests).
 
-Measurements (SPEC §2): attitude ``H_a = [I, 0, 0]``, ``R_a = σ_a² I``; angular rate
+Measurements: attitude ``H_a = [I, 0, 0]``, ``R_a = σ_a² I``; angular rate
 ``H_r = [0, −A, −A Ω(ω̂)]``, ``R_r = σ_r² I + σ_v² A Aᵀ / Δt``.
 
 All quantities SI: rad, rad/s, s; ``σ_v`` in rad/√s, ``σ_u`` in rad/s^1.5, ``q_p`` in 1/s.

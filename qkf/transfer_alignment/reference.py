@@ -1,8 +1,8 @@
 """A plain, slow reference implementation of the transfer-alignment filter on filterpy.
 
 One ``filterpy.kalman.KalmanFilter`` per trial, stepped epoch by epoch with ``Φ``, ``Q_d``,
-``H`` and ``R`` from :mod:`qkf.transfer_alignment.model` and quaternion algebra from scipy. It shares no code
-with the compiled kernel beyond the model equations, so it serves to check the kernel
+``H`` and ``R`` from :mod:`qkf.transfer_alignment.model` and quaternion algebra from scipy. It
+shares no code with the compiled kernel beyond the model equations, so it serves to check the kernel
 (tests) and as the speed reference (``benchmarks/filter_speed.py``).
 """
 

@@ -1,19 +1,16 @@
-"""Result files of SPEC §8: CSV tables, a markdown summary and PNG plots (display units)."""
+"""Result files of ``qkf bench`` and ``qkf crlb``: CSV tables, a markdown summary and PNG plots
+(display units; formats in docs/architecture.md, "Output files")."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
+from qkf.core.io import atomic_write_bytes, atomic_write_csv
+from qkf.core.plotting import figure_png, plt
 from qkf.transfer_alignment.benchmark import BenchResult
 from qkf.transfer_alignment.crlb import CrlbResult
-from qkf.core.io import atomic_write_bytes, atomic_write_csv
 from qkf.transfer_alignment.metrics import group_rms, summarize
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS, STATE_COLUMNS
 
@@ -26,20 +23,13 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 
 
 def write_crlb_csv(path: str | Path, result: CrlbResult) -> None:
-    """``t_s`` plus the 15 one-sigma bounds in display units (SPEC §8)."""
+    """``t_s`` plus the 15 one-sigma bounds in display units (docs/architecture.md)."""
     disp = result.bound / DISPLAY_UNIT
     atomic_write_csv(
         path,
         ("t_s", *STATE_COLUMNS),
         ([float(t), *map(float, row)] for t, row in zip(result.t, disp, strict=True)),
     )
-
-
-def figure_png(fig: plt.Figure) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    return buf.getvalue()
 
 
 def rms_groups_png(res: BenchResult) -> bytes:

@@ -1,4 +1,4 @@
-r"""Truth simulation of the transfer-alignment scenario (SPEC §1), vectorised over trials.
+r"""Truth simulation of the transfer-alignment scenario (docs/models.md), vectorised over trials.
 
 Per epoch ``t_k = k Δt`` (k = 0 … N−1)::
 
@@ -23,52 +23,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from qkf.core import units
+from qkf.core.quat import cumulative_rotation
 from qkf.transfer_alignment.config import Config, Scenario
 from qkf.transfer_alignment.model import calibration_matrix
-from qkf.core.quat import cumulative_rotation
+from qkf.transfer_alignment.params import TruthParams, n_epochs
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 _STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate")
-
-
-@dataclass(frozen=True)
-class TruthParams:
-    """Scenario constants in SI."""
-
-    dt: float
-    n_epochs: int
-    sigma_v: float  # rad/√s
-    sigma_u: float  # rad/s^1.5
-    sigma_a: float  # rad (true ADS attitude noise)
-    sigma_r: float  # rad/s (true ADS rate noise)
-    b0: np.ndarray  # (3,) rad/s
-    p0: np.ndarray  # (9,)
-    randomize_truth: bool
-    prior_sigma_b: float  # rad/s, used when randomize_truth
-    prior_sigma_p: float  # used when randomize_truth
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> TruthParams:
-        sc = cfg.scenario
-        tr = sc.truth
-        return cls(
-            dt=sc.dt_s,
-            n_epochs=n_epochs(sc),
-            sigma_v=sc.gyro.arw_deg_sqrt_h * units.DEG_PER_SQRT_H,
-            sigma_u=sc.gyro.rrw_deg_h_1_5 * units.DEG_PER_H_1_5,
-            sigma_a=sc.ads.attitude_sigma_arcsec * units.ARCSEC,
-            sigma_r=sc.ads.rate_sigma_degph * units.DEG_PER_H,
-            b0=np.asarray(tr.bias_degph) * units.DEG_PER_H,
-            p0=np.concatenate(
-                [
-                    np.asarray(tr.scale_factor_ppm) * units.PPM,
-                    np.asarray(tr.misalignment_urad) * units.URAD,
-                ]
-            ),
-            randomize_truth=sc.randomize_truth,
-            prior_sigma_b=cfg.filter.initial_sigma.bias_degph * units.DEG_PER_H,
-            prior_sigma_p=cfg.filter.initial_sigma.calibration_ppm * units.PPM,
-        )
 
 
 @dataclass(frozen=True)
@@ -98,11 +59,6 @@ class ScenarioData:
     @property
     def n_epochs(self) -> int:
         return int(self.t.shape[0])
-
-
-def n_epochs(sc: Scenario) -> int:
-    """Number of epochs ``N = round(duration / Δt)``."""
-    return round(sc.duration_s / sc.dt_s)
 
 
 def orbit_rate(altitude_km: float) -> float:
@@ -143,6 +99,17 @@ def calibration_walk_sigma(sc: Scenario) -> np.ndarray:
     return sig
 
 
+def calibration_jumps(sc: Scenario) -> np.ndarray:
+    """Sum of the calibration jumps in effect at each epoch (N, 9), dimensionless."""
+    t = np.arange(n_epochs(sc)) * sc.dt_s
+    jumps = np.zeros((t.size, 9))
+    for j in sc.calibration_jumps:
+        after = t >= j.t_s - 1e-9
+        jumps[after, 0:3] += j.scale_factor_ppm * units.PPM
+        jumps[after, 3:9] += j.misalignment_urad * units.URAD
+    return jumps
+
+
 def true_attitude(omega: np.ndarray, dt: float) -> np.ndarray:
     """Quaternions (N, 4) of ``C_{k+1} = C_k Exp(ω_k Δt)`` from ``C_0 = I``."""
     return cumulative_rotation(
@@ -168,11 +135,7 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     omega = true_rates(sc)
     q_true = true_attitude(omega, dt)
     walk_sigma = calibration_walk_sigma(sc)
-    jumps = np.zeros((n, 9))
-    for j in sc.calibration_jumps:
-        after = t >= j.t_s - 1e-9
-        jumps[after, 0:3] += j.scale_factor_ppm * units.PPM
-        jumps[after, 3:9] += j.misalignment_urad * units.URAD
+    jumps = calibration_jumps(sc)
 
     bias = np.empty((b, n, 3))
     calib = np.empty((b, n, 9))

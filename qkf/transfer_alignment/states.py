@@ -1,4 +1,4 @@
-"""The 15-value error state: names, groups and display units (SPEC §0, §8).
+"""The 15-value error state: names, groups and display units (docs/models.md).
 
 State order: ``x = [δθ (3), Δb (3), Δp (9)]`` with
 ``p = [s_x, s_y, s_z, k_xy, k_xz, k_yz, k_yx, k_zx, k_zy]``.

@@ -19,35 +19,38 @@ A case may name its own ``base``. Output: one folder per case (the files of ``qk
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field
 
-from qkf.transfer_alignment.benchmark import BenchResult, run_benchmark
-from qkf.transfer_alignment.config import Config, ConfigError, load_config
-from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.core import presets
+from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
 from qkf.core.io import atomic_write_bytes, atomic_write_csv, slug
+from qkf.core.plotting import figure_png, plt
+from qkf.transfer_alignment.benchmark import BenchResult, run_benchmark
+from qkf.transfer_alignment.config import Config, load_config
+from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.metrics import group_rms, summarize
-from qkf.transfer_alignment.report import SUMMARY_COLUMNS, figure_png, summary_rows, write_bench, write_crlb_csv
+from qkf.transfer_alignment.report import (
+    SUMMARY_COLUMNS,
+    summary_rows,
+    write_bench,
+    write_crlb_csv,
+)
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES
 
 
-class Case(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class Case(StrictModel):
     label: str
     base: str | None = None
     set: list[str] = Field(default_factory=list)
 
 
-class Study(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class Study(StrictModel):
     name: str
     description: str = ""
     kind: Literal["bench", "crlb"] = "bench"
@@ -59,15 +62,101 @@ class Study(BaseModel):
     cases: list[Case] = Field(min_length=1)
 
 
+@dataclass(frozen=True)
+class CaseRun:
+    """One case of a study or a sweep: its label, output folder name and config."""
+
+    label: str
+    folder: str
+    cfg: Config
+
+
+@dataclass
+class CaseResult:
+    case: CaseRun
+    bound: CrlbResult
+    bench: BenchResult | None  # None for a CRLB-only study
+
+
+def run_case(
+    case: CaseRun,
+    methods: list[str] | None,
+    trials: int | None = None,
+    seed: int | None = None,
+    progress: bool = True,
+    backend: str = "local",
+    workers: int | None = None,
+) -> CaseResult:
+    """The CRLB of a case and, unless ``methods`` is None, its Monte Carlo benchmark."""
+    bound = crlb(case.cfg)
+    if methods is None:
+        return CaseResult(case, bound, None)
+    res = run_benchmark(case.cfg, methods, trials, seed, progress, backend, workers)
+    return CaseResult(case, bound, res)
+
+
+def case_rows(result: CaseResult) -> list[list[object]]:
+    """Summary rows of a case, the case label first (``study.csv``, ``sweep_summary.csv``)."""
+    if result.bench is None:
+        summary = summarize(result.bound.bound / DISPLAY_UNIT)
+        return [[result.case.label, "crlb", 0, *summary.values(), 0.0]]
+    return [[result.case.label, *row] for row in summary_rows(result.bench)]
+
+
+def write_case(result: CaseResult, folder: Path) -> list[Path]:
+    """The files of one case: those of ``qkf bench``, or ``crlb.csv`` alone."""
+    if result.bench is None:
+        write_crlb_csv(folder / "crlb.csv", result.bound)
+        return [folder / "crlb.csv"]
+    return write_bench(result.bench, folder)
+
+
+# ---- sweeps: one config value over a list (``sweep:`` in a scenario config) -------------------
+
+
+def sweep_cases(config: str | Path, sets: list[str], cfg: Config) -> list[CaseRun]:
+    """The cases of ``cfg.sweep``: the config reloaded with ``--set key=value`` per value."""
+    assert cfg.sweep is not None
+    key = cfg.sweep.key
+    leaf = key.split(".")[-1]
+    return [
+        CaseRun(str(v), f"{leaf}={slug(v)}", load_config(config, [*sets, f"{key}={v}"]))
+        for v in cfg.sweep.values
+    ]
+
+
+def run_sweep(
+    cases: list[CaseRun],
+    key: str,
+    methods: list[str],
+    out_dir: str | Path,
+    on_case: Callable[[CaseRun, Path], None] | None = None,
+    **bench: Any,
+) -> Path:
+    """Run each case into ``OUT/<leaf>=<value>/`` (written as soon as it is done), then
+    ``OUT/sweep_summary.csv``; returns the latter. ``bench``: options of ``run_benchmark``."""
+    out = Path(out_dir)
+    rows: list[list[object]] = []
+    for case in cases:
+        result = run_case(case, methods, **bench)
+        write_case(result, out / case.folder)
+        rows += case_rows(result)
+        if on_case is not None:
+            on_case(case, out / case.folder)
+    atomic_write_csv(out / "sweep_summary.csv", (key, *SUMMARY_COLUMNS), rows)
+    return out / "sweep_summary.csv"
+
+
+# ---- studies: named cases from a study file, plotted together --------------------------------
+
+
 def load_study(path: str | Path) -> tuple[Study, list[Config]]:
-    """Read a study and the config of each case; ``ConfigError`` names the file and field."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such study file")
-    try:
-        study = Study.model_validate(yaml.safe_load(path.read_text()) or {})
-    except (ValidationError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: invalid study: {exc}") from None
+    """Read a study (a path or a preset name) and the config of each case.
+
+    ``ConfigError`` names the file and the field.
+    """
+    path = presets.resolve(path, "studies")
+    study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
     if study.kind == "bench" and study.metric not in SUMMARY_COLUMNS[2:-1]:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(SUMMARY_COLUMNS[2:-1])}")
     configs = [
@@ -81,47 +170,45 @@ def run_study(path: str | Path, out_dir: str | Path, progress: bool = True) -> l
     """Run every case, then write the case folders, ``study.csv`` and ``study.png``."""
     study, configs = load_study(path)
     out = Path(out_dir)
-    rows: list[list[object]] = []
-    curves: list[
-        tuple[str, np.ndarray, dict[str, np.ndarray], bool]
-    ] = []  # label, t, groups, bound?
-    pending: list[tuple[Case, CrlbResult, BenchResult | None]] = []
-    for case, cfg in zip(study.cases, configs, strict=True):
-        bound = crlb(cfg)
-        t = bound.t
-        curves.append(
-            (f"{case.label}: CRLB", t, group_rms((bound.bound / DISPLAY_UNIT) ** 2), True)
+    methods = study.methods if study.kind == "bench" else None
+    results = [
+        run_case(
+            CaseRun(case.label, slug(case.label).strip("_") or "case", cfg),
+            methods,
+            study.trials,
+            study.seed,
+            progress,
         )
-        if study.kind == "crlb":
-            rows.append(
-                [case.label, "crlb", 0, *summarize(bound.bound / DISPLAY_UNIT).values(), 0.0]
-            )
-            pending.append((case, bound, None))
-            continue
-        res = run_benchmark(cfg, study.methods, study.trials, study.seed, progress=progress)
-        for m in res.methods:
-            curves.append(
-                (f"{case.label}: {m.name}", t, group_rms((m.rms / DISPLAY_UNIT) ** 2), False)
-            )
-        rows += [[case.label, *row] for row in summary_rows(res)]
-        pending.append((case, bound, res))
+        for case, cfg in zip(study.cases, configs, strict=True)
+    ]
     # everything computed: now write
-    written = []
-    for case, bound, result in pending:
-        sub = out / (slug(case.label).strip("_") or "case")
-        if result is None:
-            write_crlb_csv(sub / "crlb.csv", bound)
-            written.append(sub / "crlb.csv")
-        else:
-            written += write_bench(result, sub)
+    written: list[Path] = []
+    rows: list[list[object]] = []
+    for result in results:
+        written += write_case(result, out / result.case.folder)
+        rows += case_rows(result)
     atomic_write_csv(out / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
-    atomic_write_bytes(out / "study.png", _study_png(study, curves, rows))
+    atomic_write_bytes(out / "study.png", _study_png(study, _curves(results), rows))
     return [*written, out / "study.csv", out / "study.png"]
+
+
+Curve = tuple[str, np.ndarray, dict[str, np.ndarray], bool]  # label, t, group RMS, is bound
+
+
+def _curves(results: list[CaseResult]) -> list[Curve]:
+    curves: list[Curve] = []
+    for r in results:
+        t = r.bound.t
+        label = r.case.label
+        curves.append((f"{label}: CRLB", t, group_rms((r.bound.bound / DISPLAY_UNIT) ** 2), True))
+        for m in r.bench.methods if r.bench is not None else []:
+            curves.append((f"{label}: {m.name}", t, group_rms((m.rms / DISPLAY_UNIT) ** 2), False))
+    return curves
 
 
 def _study_png(
     study: Study,
-    curves: list[tuple[str, np.ndarray, dict[str, np.ndarray], bool]],
+    curves: list[Curve],
     rows: list[list[object]],
 ) -> bytes:
     fig = plt.figure(figsize=(13, 9))
@@ -161,4 +248,4 @@ def _study_png(
     return figure_png(fig)
 
 
-__all__ = ["Study", "load_study", "run_study"]
+__all__ = ["CaseRun", "Study", "load_study", "run_study", "run_sweep", "sweep_cases"]

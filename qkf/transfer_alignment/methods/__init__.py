@@ -1,40 +1,119 @@
-"""Ways of choosing the process-noise factor κ of the transfer-alignment filter (SPEC §3).
+"""Ways of choosing the process-noise factor κ of the transfer-alignment filter (docs/methods.md).
 
-Every method filters all trials of a :class:`qkf.transfer_alignment.scenario.ScenarioData` at once and returns a
-:class:`MethodOutput`; ``qkf bench --methods`` picks them by the names in :data:`METHODS`.
+Every method filters all trials of a :class:`~qkf.transfer_alignment.scenario.ScenarioData` at
+once and returns a :class:`MethodOutput` (contract: :mod:`.base`). ``qkf bench --methods`` takes
+*method specs*, resolved by :func:`resolve_method`:
+
+``NAME``
+    a registered method: the built-ins of :data:`METHODS`, or one an installed package adds
+    through the entry-point group ``qkf.methods`` (``name = "pkg.module:function"``);
+``FACTORY:ARGUMENT``
+    a registered method factory called with the argument, e.g. ``policy:PATH`` (a saved agent;
+    :data:`METHOD_FACTORIES`, entry-point group ``qkf.method_factories``);
+``package.module:function``
+    any importable function — no registration needed;
+``LABEL=SPEC``
+    any of the above, shown as ``LABEL`` in tables and plots.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
-from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput
+from qkf.core.registry import Registry, RegistryError, load_object
+from qkf.transfer_alignment.methods.base import (
+    Method,
+    MethodOutput,
+    MethodOutputError,
+    prepare,
+    validate_output,
+)
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
 from qkf.transfer_alignment.methods.mmae import run_mmae
-from agents.policy import PREFIX, run_policy
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
-from qkf.transfer_alignment.scenario import ScenarioData
 
-MethodFn = Callable[[Config, ScenarioData], MethodOutput]
+METHODS: Registry[Method] = Registry("method", group="qkf.methods")
+"""Methods by name: the package's own first, in their default order, then installed ones."""
+_BUILTIN: tuple[tuple[str, Method], ...] = (
+    ("kf", run_kf),
+    ("kf-tuned", run_kf_tuned),
+    ("sage-husa", run_sage_husa),
+    ("qkf", run_qkf),
+    ("mmae", run_mmae),
+)
+for _name, _method in _BUILTIN:
+    METHODS.register(_name, _method)
 
-METHODS: dict[str, MethodFn] = {
-    "kf": run_kf,
-    "kf-tuned": run_kf_tuned,
-    "sage-husa": run_sage_husa,
-    "qkf": run_qkf,
-    "mmae": run_mmae,
-}
-"""Methods available to ``qkf bench --methods``, in their default order."""
+BUILTIN_METHODS: tuple[str, ...] = tuple(name for name, _ in _BUILTIN)
+"""The package's own methods (``--methods all`` runs these)."""
+
+METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(
+    "method factory", group="qkf.method_factories"
+)
+"""``FACTORY:ARGUMENT`` specs: ``factory(argument) -> method``."""
 
 
-def resolve_method(name: str) -> MethodFn:
-    """The method called ``name``: a key of :data:`METHODS` or ``policy:PATH``."""
-    if name.startswith(PREFIX):
-        path = name[len(PREFIX) :]
-        return lambda cfg, data: run_policy(cfg, data, path)
-    return METHODS[name]
+class MethodSpecError(ValueError):
+    """A method spec that cannot be resolved; the message says why."""
 
 
-__all__ = ["METHODS", "MethodFn", "MethodOutput", "resolve_method"]
+@dataclass(frozen=True)
+class NamedMethod:
+    """A resolved method and the name it is reported under."""
+
+    name: str
+    method: Method
+
+
+def resolve_method(spec: str) -> NamedMethod:
+    """The method a spec names (see the module docstring); :class:`MethodSpecError` if none."""
+    spec = spec.strip()
+    label, sep, target = spec.partition("=")
+    if not sep:
+        label, target = "", spec
+    label, target = label.strip(), target.strip()
+    if sep and not label:
+        raise MethodSpecError(f"{spec!r}: empty label before '='")
+    if not target:
+        raise MethodSpecError(f"{spec!r}: no method")
+    try:
+        method = _resolve_target(target)
+    except RegistryError as exc:
+        raise MethodSpecError(str(exc)) from None
+    if not callable(method):
+        raise MethodSpecError(f"{target!r} is not callable")
+    return NamedMethod(label or target, method)
+
+
+def _resolve_target(target: str) -> Method:
+    if target in METHODS:
+        return METHODS[target]
+    head, sep, arg = target.partition(":")
+    if not sep:
+        raise MethodSpecError(
+            f"unknown method {target!r}; known: {', '.join(METHODS.names())}, "
+            f"{', '.join(f'{f}:ARG' for f in METHOD_FACTORIES.names())}, or module:function"
+        )
+    if head in METHOD_FACTORIES:
+        try:
+            return METHOD_FACTORIES[head](arg)
+        except (OSError, ValueError) as exc:
+            raise MethodSpecError(f"{target!r}: {exc}") from None
+    return load_object(target)
+
+
+__all__ = [
+    "BUILTIN_METHODS",
+    "METHODS",
+    "METHOD_FACTORIES",
+    "Method",
+    "MethodOutput",
+    "MethodOutputError",
+    "MethodSpecError",
+    "NamedMethod",
+    "prepare",
+    "resolve_method",
+    "validate_output",
+]

@@ -1,24 +1,94 @@
-"""What a method returns, and the small helpers the methods share."""
+"""The method contract (docs/architecture.md, "Add a method") and helpers the methods share.
+
+A *method* is a callable ``method(cfg, data) -> MethodOutput`` that filters every trial of a
+:class:`~qkf.transfer_alignment.scenario.ScenarioData` at once. Optionally it has
+``prepare(cfg) -> method``: work done once per run, in the driver process, before trials are
+dispatched to the backend (the tuned KF picks its κ there); the returned method must be
+picklable (a module-level function, or a ``functools.partial`` / dataclass of one).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
+
+
+class MethodOutputError(ValueError):
+    """A method returned something that does not fit the contract; the message says what."""
 
 
 @dataclass
 class MethodOutput:
-    """A method's estimates for B trials over N epochs (SI)."""
+    """A method's estimates for B trials over N epochs (SI).
 
-    est: np.ndarray  # (B, N, 16): q̂ (scalar-last), b̂, p̂ after each epoch's update
+    ``kappa`` is the process-noise factor in use per trial and epoch (methods that adapt each
+    calibration term separately give the geometric mean over the nine terms, a bank its
+    probability-weighted geometric mean); ``None`` for a method that does not choose κ.
+    ``logs`` holds method-specific arrays for whoever calls the method directly; the benchmark
+    does not read them.
+    """
+
+    est: np.ndarray  # (B, N, 16): q̂ (scalar-last), b̂ (rad/s), p̂ after each epoch's update
     diverged: np.ndarray  # (B,) bool
-    extras: dict[str, np.ndarray] = field(default_factory=dict)  # method-specific logs
+    kappa: np.ndarray | None = None  # (B, N) κ in use, finite and positive
+    logs: dict[str, np.ndarray] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)  # one-line facts for the summary
+
+
+def validate_output(out: object, name: str, n_trials: int, n_epochs: int) -> MethodOutput:
+    """Check a method's output against the contract; :class:`MethodOutputError` if it fails.
+
+    Called on every chunk as soon as the method returns, so a malformed output stops the run
+    before anything is written.
+    """
+    where = f"method {name!r}"
+    if not isinstance(out, MethodOutput):
+        raise MethodOutputError(f"{where} returned {type(out).__name__}, not a MethodOutput")
+    est = np.asarray(out.est)
+    if est.shape != (n_trials, n_epochs, 16):
+        raise MethodOutputError(
+            f"{where}: est has shape {est.shape}, expected ({n_trials}, {n_epochs}, 16)"
+        )
+    div = np.asarray(out.diverged)
+    if div.shape != (n_trials,) or div.dtype != np.bool_:
+        raise MethodOutputError(
+            f"{where}: diverged must be a boolean array of shape ({n_trials},), "
+            f"got {div.dtype} {div.shape}"
+        )
+    if out.kappa is not None:
+        kap = np.asarray(out.kappa)
+        if kap.shape != (n_trials, n_epochs):
+            raise MethodOutputError(
+                f"{where}: kappa has shape {kap.shape}, expected ({n_trials}, {n_epochs}): "
+                "the κ in use per trial and epoch"
+            )
+        alive = ~div
+        if not np.all(np.isfinite(kap[alive]) & (kap[alive] > 0.0)):
+            raise MethodOutputError(f"{where}: kappa must be finite and positive")
+    bad_notes = [k for k, v in out.notes.items() if not isinstance(v, str)]
+    if bad_notes:
+        raise MethodOutputError(f"{where}: notes must be strings ({', '.join(bad_notes)})")
+    return out
+
+
+@runtime_checkable
+class Method(Protocol):
+    """``method(cfg, data) -> MethodOutput`` (see the module docstring)."""
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput: ...
+
+
+def prepare(method: Method, cfg: Config) -> Method:
+    """``method.prepare(cfg)`` if the method has it, else the method itself."""
+    prep = getattr(method, "prepare", None)
+    return prep(cfg) if callable(prep) else method
 
 
 def new_filter(cfg: Config, data: ScenarioData, n_copies: int = 1) -> TransferAlignmentKF:
@@ -33,14 +103,14 @@ def action_values(cfg: Config) -> np.ndarray:
     return np.asarray(cfg.adaptive.actions.values())
 
 
-def nominal_action(cfg: Config) -> int:
-    """Index of the action closest to κ = 1 (where adaptive methods and episodes start)."""
-    return int(np.argmin(np.abs(np.log(action_values(cfg)))))
+def decision_steps(period_s: float, dt_s: float) -> int:
+    """Filter epochs per decision period (at least one)."""
+    return max(1, round(period_s / dt_s))
 
 
-def decision_period(cfg: Config) -> int:
-    """Filter epochs per decision period ``T_c`` (at least one)."""
-    return max(1, round(cfg.adaptive.qkf.period_s / cfg.scenario.dt_s))
+def per_epoch(per_period: np.ndarray, period: int, n_epochs: int) -> np.ndarray:
+    """Expand values held over decision periods (B, T) to every epoch (B, N)."""
+    return np.repeat(per_period, period, axis=1)[:, :n_epochs]
 
 
 def method_rng(data: ScenarioData, trial_row: int, stream: int) -> np.random.Generator:

@@ -1,6 +1,8 @@
-"""Fixed-Q filters: the nominal one (κ = 1) and the oracle-tuned constant κ (SPEC §3)."""
+"""Fixed-Q filters: the nominal κ (``run.kappa``) and the tuned constant κ (docs/methods.md)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,9 +24,6 @@ def run_kf(cfg: Config, data: ScenarioData) -> MethodOutput:
     return run_fixed(cfg, data, cfg.run.kappa)
 
 
-_TUNED: dict[str, tuple[float, tuple[float, ...]]] = {}
-
-
 def tuned_kappa(cfg: Config) -> tuple[float, tuple[float, ...]]:
     """The action whose constant κ gives the lowest time-averaged calibration RMS on the
     tuning trials (seed ``adaptive.tuned.seed``, disjoint from any evaluation seed's streams).
@@ -32,9 +31,6 @@ def tuned_kappa(cfg: Config) -> tuple[float, tuple[float, ...]]:
     Returns ``(κ*, calibration RMS per action)``; the RMS is over trials, epochs and the nine
     calibration terms, in 1e-6 (ppm or µrad).
     """
-    key = cfg.model_dump_json()
-    if key in _TUNED:  # one tuning per config and process, whatever the number of chunks
-        return _TUNED[key]
     tc = cfg.adaptive.tuned
     data = simulate(cfg, tc.seed, tc.trials)
     kappas = action_values(cfg)
@@ -44,14 +40,37 @@ def tuned_kappa(cfg: Config) -> tuple[float, tuple[float, ...]]:
         err = state_errors(out.est, data.q_true, data.bias, data.calib)[..., 6:15]
         scores.append(float(np.sqrt(np.mean(err**2))) / 1e-6)
     best = int(np.nanargmin(scores))
-    _TUNED[key] = (float(kappas[best]), tuple(scores))
-    return _TUNED[key]
+    return float(kappas[best]), tuple(scores)
 
 
-def run_kf_tuned(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """Tuned fixed-Q KF: the best constant κ of the action set, picked on tuning seeds."""
-    kappa, _ = tuned_kappa(cfg)
-    out = run_fixed(cfg, data, kappa)
-    n = cfg.adaptive.tuned.trials
-    out.notes["kf-tuned"] = f"κ = {kappa:.3g} (best constant κ on {n} tuning trials)"
-    return out
+@dataclass(frozen=True)
+class FixedKappa:
+    """A fixed-Q KF with a κ chosen beforehand (what :class:`TunedKF` prepares)."""
+
+    kappa: float
+    note: str = ""
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        out = run_fixed(cfg, data, self.kappa)
+        if self.note:
+            out.notes["kf-tuned"] = self.note
+        return out
+
+
+class TunedKF:
+    """Tuned fixed-Q KF: the best constant κ of the action set, picked on tuning seeds.
+
+    The tuning runs once per benchmark, in :meth:`prepare` (driver process); calling the
+    method unprepared tunes on the spot.
+    """
+
+    def prepare(self, cfg: Config) -> FixedKappa:
+        kappa, _ = tuned_kappa(cfg)
+        n = cfg.adaptive.tuned.trials
+        return FixedKappa(kappa, f"κ = {kappa:.3g} (best constant κ on {n} tuning trials)")
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        return self.prepare(cfg)(cfg, data)
+
+
+run_kf_tuned = TunedKF()

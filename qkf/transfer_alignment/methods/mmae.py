@@ -1,4 +1,4 @@
-r"""MMAE: a bank of parallel filters, one per κ of the action set (SPEC §3).
+r"""MMAE: a bank of parallel filters, one per κ of the action set (docs/methods.md).
 
 Model probabilities follow the innovation likelihood of each filter::
 
@@ -90,4 +90,6 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
         bank_est[dead, 3] = 1.0
         est[:, sl] = combine(bank_est, w_block)
     diverged = np.asarray(bank.diverged.reshape(b, n_act).all(axis=1))
-    return MethodOutput(est=est, diverged=diverged, extras={"weights": weights})
+    # κ in use: the probability-weighted geometric mean of the bank's κ
+    kappa = np.exp(weights @ np.log(kappas))
+    return MethodOutput(est=est, diverged=diverged, kappa=kappa, logs={"weights": weights})

@@ -1,4 +1,4 @@
-r"""QKF: the online Q-learning Kalman filter with one explorative filter (SPEC §3).
+r"""QKF: the online Q-learning Kalman filter with one explorative filter (docs/methods.md).
 
 State ``s`` = index of the κ the main filter uses; Q-table (A × A) per trial, zero at start.
 Every decision period ``T_c``:
@@ -26,10 +26,10 @@ from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
-    decision_period,
+    decision_steps,
     method_rng,
     new_filter,
-    nominal_action,
+    per_epoch,
 )
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -65,12 +65,12 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     kappas = action_values(cfg)
     n_act = kappas.size
     b, n = data.n_trials, data.n_epochs
-    period = decision_period(cfg)
+    period = decision_steps(qc.period_s, cfg.scenario.dt_s)
     main = new_filter(cfg, data)
     explore = new_filter(cfg, data)
     rngs = [method_rng(data, i, stream=1) for i in range(b)]
     table = np.zeros((b, n_act, n_act))
-    s = np.full(b, nominal_action(cfg))  # start at κ = 1
+    s = np.full(b, cfg.adaptive.actions.nominal_index())  # start at κ = 1
     est = np.empty((b, n, 16))
     starts = list(range(0, n, period))
     kappa_index = np.empty((b, len(starts)), dtype=np.int64)
@@ -102,7 +102,8 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     return MethodOutput(
         est=est,
         diverged=main.diverged.copy(),
-        extras={
+        kappa=per_epoch(kappas[kappa_index], period, n),
+        logs={
             "kappa_index": kappa_index,
             "period_start_s": np.asarray(starts) * cfg.scenario.dt_s,
             "reward": rewards,

@@ -1,4 +1,4 @@
-r"""Sage–Husa adaptive Kalman filter on the calibration block (SPEC §3).
+r"""Sage–Husa adaptive Kalman filter on the calibration block (docs/methods.md).
 
 With forgetting factor ``b`` and ``d_k = (1 − b)/(1 − b^{k+1})``, the process noise per step of
 each calibration term ``i`` is estimated as::
@@ -68,8 +68,10 @@ def adapt_attitude_noise(
 
 
 def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """Sage–Husa AKF, batched over trials; logs ``Q̂`` per epoch as κ = Q̂ / (q_p0 Δt) and,
-    with R adaptation, the assumed attitude sigma (``sigma_a``, rad)."""
+    """Sage–Husa AKF, batched over trials.
+
+    Logs ``Q̂`` per epoch and term as κ = Q̂ / (q_p0 Δt) (``kappa_terms``) and, with R
+    adaptation, the assumed attitude sigma (``sigma_a``, rad)."""
     kf = new_filter(cfg, data)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
@@ -103,7 +105,9 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
             )
             n_upd += 1
             kf.sigma_a[:] = np.sqrt(r_hat)
-    extras: dict[str, np.ndarray] = {"kappa": kappa_log}
+    logs: dict[str, np.ndarray] = {"kappa_terms": kappa_log}
     if sh.adapt_r:
-        extras["sigma_a"] = sigma_log
-    return MethodOutput(est=est, diverged=kf.diverged.copy(), extras=extras)
+        logs["sigma_a"] = sigma_log
+    # κ in use: the geometric mean over the nine calibration terms
+    kappa = np.exp(np.mean(np.log(kappa_log), axis=-1))
+    return MethodOutput(est=est, diverged=kf.diverged.copy(), kappa=kappa, logs=logs)

@@ -1,0 +1,134 @@
+"""Packaging and layering: an installed wheel finds the presets by name; the package list in
+pyproject.toml matches the tree; qkf never imports envs or agents; torch is loaded only by the
+commands that need it; ``python -m qkf`` works."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _packages_in_tree() -> set[str]:
+    found = set()
+    for top in ("qkf", "envs", "agents"):
+        for init in (ROOT / top).rglob("__init__.py"):
+            found.add(".".join(init.parent.relative_to(ROOT).parts))
+    return found
+
+
+def test_pyproject_lists_every_package() -> None:
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    assert _packages_in_tree() == listed - {"qkf.presets", "qkf.presets.studies"}
+
+
+def _imports(path: Path) -> set[str]:
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_the_library_never_imports_its_consumers() -> None:
+    """qkf/ imports neither envs nor agents (the command line, above all three, may)."""
+    offenders = [
+        str(p.relative_to(ROOT))
+        for p in (ROOT / "qkf").rglob("*.py")
+        if p.name != "cli.py" and _imports(p) & {"envs", "agents"}
+    ]
+    assert offenders == []
+    assert not [p for p in (ROOT / "envs").rglob("*.py") if "agents" in _imports(p)]
+
+
+def _run(code: str, cwd: Path, env: dict[str, str] | None = None) -> str:
+    res = subprocess.run(
+        [sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert res.returncode == 0, res.stderr[-3000:]
+    return res.stdout
+
+
+def test_torch_is_loaded_only_by_agent_commands(tmp_path: Path) -> None:
+    code = f"""
+import sys
+from typer.testing import CliRunner
+import envs, gymnasium as gym
+from qkf.cli import app
+r = CliRunner().invoke(app, ["crlb", "paper", "--set", "scenario.duration_s=20",
+                             "--out", r"{tmp_path / "c.csv"}"])
+assert r.exit_code == 0, r.output
+gym.make("qkf/TransferAlignment-v0", overrides=["scenario.duration_s=20"]).reset(seed=0)
+print("torch" in sys.modules)
+"""
+    assert _run(code, ROOT).strip() == "False"
+
+
+def test_python_dash_m_qkf(tmp_path: Path) -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "qkf", "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 0 and "bench" in res.stdout
+
+
+@pytest.mark.slow
+def test_installed_wheel_finds_presets_by_name(tmp_path: Path) -> None:
+    """Build the wheel, install it alone into a folder, and use it from elsewhere."""
+    dist = tmp_path / "dist"
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(dist),
+            str(ROOT),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert build.returncode == 0, build.stderr[-3000:]
+    assert "deprecat" not in (build.stdout + build.stderr).lower()
+    (wheel,) = dist.glob("qkf-*.whl")
+    site = tmp_path / "site"
+    inst = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--target", str(site), str(wheel)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert inst.returncode == 0, inst.stderr[-3000:]
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    code = f"""
+import qkf, gymnasium as gym, envs
+from qkf.transfer_alignment.config import load_config
+from qkf.transfer_alignment.study import load_study
+assert qkf.__file__.startswith({str(site)!r}), qkf.__file__
+assert load_config("thermal_snap").name == "thermal-snap"
+assert load_config("thermal-snap").name == "thermal-snap"
+study, cases = load_study("matching")
+assert len(cases) == 2
+env = gym.make("qkf/TransferAlignment-v0", scenario="thermal_snap",
+               overrides=["scenario.duration_s=20"])
+env.reset(seed=1)
+print("ok")
+"""
+    assert _run(code, work, env).strip() == "ok"
