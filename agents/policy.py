@@ -85,6 +85,12 @@ class PolicyMethod:
 
     path: str
 
+    @property
+    def default_label(self) -> str:
+        """``policy:<stem>``, or ``policy:<folder>`` for a model saved as ``model.*``."""
+        p = Path(self.path)
+        return f"policy:{p.parent.name if p.stem == 'model' and p.parent.name else p.stem}"
+
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return run_policy(cfg, data, self.path)
 

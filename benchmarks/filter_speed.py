@@ -4,15 +4,17 @@ Run: ``.venv/bin/python benchmarks/filter_speed.py`` (or ``make speed``).
 
 For each batch size B the same 15-state filter runs over the epochs of the ``paper`` scenario:
 
-* ``batched``: :class:`qkf.transfer_alignment.filter.TransferAlignmentKF`, all B trials at once (model, update,
-  reset and propagation included; compiled kernel, trials spread over the cores);
+* ``batched``: :class:`qkf.transfer_alignment.filter.TransferAlignmentKF`, all B trials at
+  once (model, update, reset and propagation included; compiled kernel, trials spread over the
+  cores);
 * ``filterpy``: one ``filterpy.kalman.KalmanFilter`` per trial, ``predict(F=Φ, Q=Q)`` and
   ``update(z, R=R, H=H)`` each epoch with the same transfer-alignment matrices, evaluated
   beforehand (outside the timing) so that only filterpy's own cost is counted: the most
   favourable reference for filterpy. Its cost does not depend on B (a plain loop), so it is
   measured on ``min(B, --ref-trials)`` trials;
-* ``filterpy+model`` (once): the complete per-trial reference ``qkf.transfer_alignment.reference``, which
-  also evaluates Φ, Q_d, H, R and the attitude reset per step in numpy/scipy.
+* ``filterpy+model`` (once): the complete per-trial reference
+  ``qkf.transfer_alignment.reference``, which also evaluates Φ, Q_d, H, R and the attitude reset
+  per step in numpy/scipy.
 
 It prints filter-steps per second (trials × epochs / s), the ratio batched/filterpy as
 ``speedup_vs_filterpy: X`` and the peak memory allocated by the batched filter (filter state,

@@ -18,7 +18,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from qkf.core.config import ConfigError
-from qkf.transfer_alignment.config import Config, load_config
+from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
 
 app = typer.Typer(
     add_completion=False,
@@ -52,6 +52,18 @@ def _load(config: str, sets: list[str] | None) -> Config:
         raise _fail(str(exc)) from None
 
 
+MATCHING = ("attitude", "attitude_rate")
+
+
+def _check_out(path: Path, kind: str = "dir") -> None:
+    from qkf.core.io import OutputError, check_output_dir, check_output_file
+
+    try:
+        (check_output_dir if kind == "dir" else check_output_file)(path)
+    except OutputError as exc:
+        raise _fail(f"--out: {exc}") from None
+
+
 @app.command("crlb")
 def crlb_cmd(
     config: ConfigArgument,
@@ -62,10 +74,13 @@ def crlb_cmd(
     ] = None,
 ) -> None:
     """Posterior Cramér–Rao bound per epoch (1-σ, display units) as CSV."""
+    if matching is not None and matching not in MATCHING:
+        raise _fail(f"--matching: {matching!r} is not {' or '.join(MATCHING)}")
     sets = list(set_ or [])
     if matching is not None:
         sets.append(f"filter.matching={matching}")
     cfg = _load(config, sets)
+    _check_out(out_file, "file")
     from qkf.transfer_alignment.crlb import crlb
     from qkf.transfer_alignment.report import write_crlb_csv
 
@@ -75,14 +90,17 @@ def crlb_cmd(
 
 @app.command("bench")
 def bench_cmd(
-    config: ConfigArgument,
+    config: Annotated[
+        str | None,
+        typer.Argument(help="Scenario: a preset name (paper) or a YAML path."),
+    ] = None,
     methods: Annotated[
-        str,
+        str | None,
         typer.Option(
-            help="Comma-separated method specs, or 'all': kf, kf-tuned, sage-husa, qkf, mmae; "
-            "policy:PATH (a saved agent); package.module:function (your own); LABEL=SPEC."
+            help="Comma-separated method specs, or 'all' (default): kf, kf-tuned, sage-husa, qkf, "
+            "mmae; policy:PATH (a saved agent); package.module:function (your own); LABEL=SPEC."
         ),
-    ] = "all",
+    ] = None,
     trials: Annotated[
         int | None, typer.Option(help="Monte Carlo trials (config: run.trials).")
     ] = None,
@@ -98,80 +116,156 @@ def bench_cmd(
     workers: Annotated[
         int | None, typer.Option(help="local backend: worker processes (config: run.workers).")
     ] = None,
+    from_manifest: Annotated[
+        Path | None,
+        typer.Option(help="Rerun the run described by a run.json (config, methods, trials, seed)."),
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option(help="Sweeps: finish an interrupted sweep in --out.")
+    ] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Sweeps: replace an earlier sweep in --out.")
+    ] = False,
 ) -> None:
-    """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots.
+    """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots,
+    run.json. --out is replaced whole when the run has finished.
 
     A config with a ``sweep`` runs once per value into OUT/<key>=<value>/ and writes
     OUT/sweep_summary.csv.
     """
+    from qkf.core.io import OutputError
     from qkf.core.montecarlo import BACKENDS
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.methods import MethodOutputError
     from qkf.transfer_alignment.report import write_bench
     from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
 
-    cfg = _load(config, set_)
-    if trials is not None and trials < 1:
-        raise _fail("--trials must be at least 1")
-    if seed is not None and seed < 0:
-        raise _fail("--seed must be non-negative")
+    if (config is None) == (from_manifest is None):
+        raise _fail("give a CONFIG or --from-manifest run.json (not both)")
+    if from_manifest is not None:
+        if set_ or methods is not None or trials is not None or seed is not None:
+            raise _fail("--from-manifest takes the config, methods, trials and seed from it")
+        cfg, methods, trials, seed = _from_manifest(from_manifest)
+    else:
+        assert config is not None
+        cfg = _load(config, set_)
+    if trials is not None and not 1 <= trials <= MAX_TRIALS:
+        raise _fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+    if seed is not None and not 0 <= seed < 2**63:
+        raise _fail("--seed must be between 0 and 2**63 - 1")
     try:
-        named = parse_methods(methods)
+        named = parse_methods(methods or "all")
     except ValueError as exc:
         raise _fail(f"--methods: {exc}") from None
     if backend not in BACKENDS:
         raise _fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
     if workers is not None and workers < 1:
         raise _fail("--workers must be at least 1")
-    bench = {
-        "trials": trials,
-        "seed": seed,
-        "progress": not quiet,
-        "backend": backend,
-        "workers": workers,
-    }
+    _check_out(out_dir)
+    bench = {"progress": not quiet, "backend": backend, "workers": workers}
 
     def show(folder: Path) -> None:
         # raw markdown, unwrapped: a narrow terminal must not truncate the numbers
-        out.print(
-            (folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False
-        )
+        text = (folder / "summary.md").read_text()
+        out.print(text, soft_wrap=True, markup=False, highlight=False)
         out.print(f"wrote {folder}/")
 
     try:
         if cfg.sweep is None:
-            write_bench(run_benchmark(cfg, named, **bench), out_dir)  # type: ignore[arg-type]
+            if resume or overwrite:
+                raise _fail("--resume and --overwrite are for sweeps; a run replaces --out whole")
+            res = run_benchmark(cfg, named, trials, seed, **bench)  # type: ignore[arg-type]
+            write_bench(res, out_dir)
             show(out_dir)
             return
         key = cfg.sweep.key
+        assert config is not None
         cases = sweep_cases(config, list(set_ or []), cfg)
 
-        def on_case(case: CaseRun, folder: Path) -> None:
-            out.print(f"[bold]{key} = {case.label}[/]")
+        def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+            out.print(f"[bold]{key} = {case.label}[/]" + (" (finished earlier)" if reused else ""))
             show(folder)
 
-        summary = run_sweep(cases, key, named, out_dir, on_case=on_case, **bench)  # type: ignore[arg-type]
-    except (ConfigError, MethodOutputError) as exc:
+        summary = run_sweep(
+            cases, key, named, out_dir, trials, seed, resume, overwrite, on_case, **bench
+        )
+    except (ConfigError, MethodOutputError, OutputError) as exc:
         raise _fail(str(exc)) from None
     out.print(f"wrote {summary}")
 
 
+def _from_manifest(path: Path) -> tuple[Config, str, int, int]:
+    from qkf.core.config import validate
+    from qkf.core.manifest import read_manifest
+
+    try:
+        info = read_manifest(path, "bench")
+        cfg = validate(Config, info["config"], f"{path}: config")
+        specs = [m.get("spec") for m in info.get("methods", [])]
+        if not specs or any(not isinstance(sp, str) for sp in specs):
+            raise ConfigError(f"{path}: methods: a method was passed as an object, not a spec")
+        return cfg, ",".join(specs), int(info["trials"]), int(info["seed"])
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise _fail(str(exc)) from None
+        raise _fail(f"{path}: not a usable manifest ({exc!r})") from None
+
+
+@app.command("plot")
+def plot_cmd(
+    folder: Annotated[Path, typer.Argument(help="A finished qkf bench folder (or a sweep's).")],
+) -> None:
+    """Redraw every figure of a finished run from its CSV files and run.json."""
+    from qkf.transfer_alignment.report import redraw_bench
+
+    if not folder.is_dir():
+        raise _fail(f"{folder}: no such folder")
+    targets = [folder] if (folder / "rms.csv").is_file() else sorted(
+        p.parent for p in folder.glob("*/rms.csv")
+    )
+    if not targets:
+        raise _fail(f"{folder}: no qkf bench results (rms.csv) here or one level below")
+    try:
+        for target in targets:
+            for path in redraw_bench(target):
+                out.print(f"wrote {path}")
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+
+
 @app.command("study")
 def study_cmd(
-    study: Annotated[str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")],
+    study: Annotated[
+        str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")
+    ],
     out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
         "results/study"
     ),
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    resume: Annotated[
+        bool, typer.Option(help="Finish an interrupted study in --out (finished cases kept).")
+    ] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png."""
-    from qkf.transfer_alignment.study import run_study
+    from qkf.core.io import OutputError
+    from qkf.transfer_alignment.methods import MethodOutputError
+    from qkf.transfer_alignment.study import CaseRun, load_study, prepare_output, run_study
 
     try:
-        written = run_study(study, out_dir, progress=not quiet)
-    except ConfigError as exc:
+        load_study(study)
+        prepare_output(out_dir, resume, overwrite)
+    except (ConfigError, OutputError) as exc:
         raise _fail(str(exc)) from None
-    out.print(f"wrote {len(written)} files under {out_dir}/ (study.csv, study.png)")
+
+    def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+        out.print(f"{case.label}: {'finished earlier, kept' if reused else 'done'} ({folder}/)")
+
+    try:
+        written = run_study(study, out_dir, not quiet, resume, overwrite, on_case)
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise _fail(str(exc)) from None
+    out.print(f"wrote {len(written)} entries under {out_dir}/ (study.csv, study.png)")
 
 
 @app.command("train")

@@ -26,9 +26,10 @@ class ConfigError(ValueError):
 
 
 class StrictModel(BaseModel):
-    """Base of every config model: unknown keys are refused, instances are immutable."""
+    """Base of every config model: unknown keys are refused, instances are immutable, NaN and
+    infinities are refused (a non-finite number in a config is always a mistake)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _parse_override(item: str) -> tuple[list[str], Any]:
@@ -80,7 +81,7 @@ def format_validation(source: str, exc: ValidationError, what: str = "configurat
     lines = []
     for err in exc.errors():
         loc = ".".join(str(x) for x in err["loc"]) or "(top level)"
-        msg = err["msg"]
+        msg = " ".join(str(err["msg"]).split())
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         lines.append(f"{source}: {loc}: {msg}")
@@ -88,19 +89,35 @@ def format_validation(source: str, exc: ValidationError, what: str = "configurat
 
 
 def read_yaml_mapping(path: str | Path, what: str = "config") -> dict[str, Any]:
-    """The top-level mapping of a YAML file (empty file: ``{}``); ``ConfigError`` otherwise."""
+    """The top-level mapping of a YAML file; ``ConfigError`` for anything else, including an
+    empty file (which would otherwise run silently as the defaults)."""
     p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a directory, not a {what} file")
     if not p.is_file():
         raise ConfigError(f"{p}: no such {what} file")
     try:
-        loaded = yaml.safe_load(p.read_text())
+        loaded = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{p}: not a text file (UTF-8): {exc.reason} at byte {exc.start}"
+        ) from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML: {exc}") from exc
+        raise ConfigError(f"{p}: not valid YAML: {_one_line(exc)}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: nested too deeply") from None
     if loaded is None:
-        return {}
+        raise ConfigError(f"{p}: empty {what} file (write the keys that differ from the defaults)")
     if not isinstance(loaded, dict):
-        raise ConfigError(f"{p}: top level must be a mapping")
+        raise ConfigError(f"{p}: top level must be a mapping, not {type(loaded).__name__}")
+    bad = [k for k in loaded if not isinstance(k, str)]
+    if bad:
+        raise ConfigError(f"{p}: {bad[0]!r}: keys must be strings")
     return loaded
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).split())
 
 
 def validate(model: type[M], data: dict[str, Any], source: str, what: str = "configuration") -> M:
@@ -109,6 +126,8 @@ def validate(model: type[M], data: dict[str, Any], source: str, what: str = "con
         return model.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(format_validation(source, exc, what)) from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply") from None
 
 
 def load_model(

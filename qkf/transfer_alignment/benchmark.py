@@ -40,6 +40,7 @@ from qkf.transfer_alignment.states import DISPLAY_UNIT
 class MethodResult:
     name: str
     rms: np.ndarray  # (N, 15) SI, RMS over trials per epoch
+    spec: str | None = field(default=None, kw_only=True)  # how it was asked for (manifest)
     trials: int
     diverged: int
     runtime_s: float
@@ -57,6 +58,8 @@ class BenchResult:
     methods: list[MethodResult]
     bound: CrlbResult
     kappa_t: np.ndarray  # (T,) s, the times at which κ traces are sampled
+    backend: str = "local"
+    workers: int = 1
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -144,6 +147,7 @@ def run_benchmark(
         else [m if isinstance(m, NamedMethod) else resolve_method(m) for m in methods]
     )
     labels = [m.name for m in _unique(named)]
+    specs = {m.name: m.spec for m in named}
     prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
     n = n_epochs(cfg.scenario)
     acc = {m: ErrorAccumulator(n) for m in labels}
@@ -175,6 +179,7 @@ def run_benchmark(
                 summary=summarize(rms / DISPLAY_UNIT),
                 kappa=np.concatenate(kappas[m]) if kappas[m] else None,
                 notes=notes[m],
+                spec=specs[m],
             )
         )
     return BenchResult(
@@ -185,4 +190,6 @@ def run_benchmark(
         methods=results,
         bound=crlb(cfg),
         kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
+        backend=backend,
+        workers=workers,
     )

@@ -91,6 +91,12 @@ class Ads(StrictModel):
     gaps: list[TimeWindow] = Field(default_factory=list)
 
 
+MAX_EPOCHS = 10_000_000
+"""Upper bound on ``duration_s / dt_s``: beyond it a typo (1e30) would exhaust memory."""
+MAX_TRIALS = 10_000_000
+"""Upper bound on Monte Carlo trial counts."""
+
+
 def _default_maneuvers() -> list[Maneuver]:
     return [
         Maneuver(start_s=0.0, duration_s=100.0, axis="x", rate_deg_s=1.0),
@@ -115,6 +121,11 @@ class Scenario(StrictModel):
     def _fits(self) -> Scenario:
         if self.duration_s < self.dt_s:
             raise ValueError("duration_s must be at least one step (dt_s)")
+        if self.duration_s / self.dt_s > MAX_EPOCHS:
+            raise ValueError(
+                f"duration_s / dt_s = {self.duration_s / self.dt_s:.3g} epochs; at most "
+                f"{MAX_EPOCHS:,} (memory grows with trials × epochs)"
+            )
         return self
 
 
@@ -139,11 +150,11 @@ class FilterConfig(StrictModel):
 
 
 class RunConfig(StrictModel):
-    trials: Annotated[int, Field(ge=1)] = 20
-    seed: Annotated[int, Field(ge=0)] = 0
+    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 20
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
     kappa: PositiveFloat = 1.0
-    chunk_trials: Annotated[int, Field(ge=1)] = 64
-    workers: Annotated[int, Field(ge=1)] = 1  # local backend: processes (1 = this process)
+    chunk_trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 64
+    workers: Annotated[int, Field(ge=1, le=1024)] = 1  # local backend: processes (1 = here)
     ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
 
 
@@ -223,7 +234,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         return load_model(Config, None, overrides)
     resolved = presets.resolve(path)
     if not resolved.exists() and presets.is_preset_name(path):
-        known = ", ".join(presets.preset_names())
+        known = ", ".join(n for n in presets.preset_names() if not n.startswith("train_"))
         raise ConfigError(f"{path}: no such config file or preset (presets: {known})")
     return load_model(Config, resolved, overrides)
 

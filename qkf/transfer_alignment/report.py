@@ -3,33 +3,41 @@
 
 from __future__ import annotations
 
+import csv
+from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from qkf.core.io import atomic_write_bytes, atomic_write_csv
+from qkf.core.config import ConfigError, validate
+from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
+from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
-from qkf.transfer_alignment.benchmark import BenchResult
+from qkf.transfer_alignment.benchmark import BenchResult, MethodResult
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
 from qkf.transfer_alignment.metrics import group_rms, summarize
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS, STATE_COLUMNS
 
-SUMMARY_COLUMNS: tuple[str, ...] = (
-    "method",
-    "trials",
-    *(f"{g}_{kind}" for g in GROUPS for kind in ("final", "avg")),
-    "runtime_s",
-)
+METRIC_COLUMNS: tuple[str, ...] = tuple(f"{g}_{kind}" for g in GROUPS for kind in ("final", "avg"))
+"""Summary metrics: per state group, ``_final`` (last 20 % of the run) and ``_avg``."""
+
+SUMMARY_COLUMNS: tuple[str, ...] = ("method", "trials", "diverged", *METRIC_COLUMNS, "runtime_s")
 
 
-def write_crlb_csv(path: str | Path, result: CrlbResult) -> None:
+def crlb_csv_text(result: CrlbResult) -> str:
     """``t_s`` plus the 15 one-sigma bounds in display units (docs/architecture.md)."""
     disp = result.bound / DISPLAY_UNIT
-    atomic_write_csv(
-        path,
+    return csv_text(
         ("t_s", *STATE_COLUMNS),
         ([float(t), *map(float, row)] for t, row in zip(result.t, disp, strict=True)),
     )
+
+
+def write_crlb_csv(path: str | Path, result: CrlbResult) -> None:
+    """Write :func:`crlb_csv_text` to ``path`` atomically."""
+    atomic_write_bytes(path, crlb_csv_text(result).encode())
 
 
 def rms_groups_png(res: BenchResult) -> bytes:
@@ -105,7 +113,13 @@ def kappa_rows(res: BenchResult) -> list[list[object]]:
 
 def summary_rows(res: BenchResult) -> list[list[object]]:
     return [
-        [m.name, m.trials, *(m.summary[c] for c in SUMMARY_COLUMNS[2:-1]), round(m.runtime_s, 3)]
+        [
+            m.name,
+            m.trials,
+            m.diverged,
+            *(m.summary[c] for c in METRIC_COLUMNS),
+            round(m.runtime_s, 3),
+        ]
         for m in res.methods
     ]
 
@@ -133,9 +147,9 @@ def summary_markdown(res: BenchResult) -> str:
         "|" + "---|" * len(head),
     ]
     for m in res.methods:
-        vals = [f"{m.summary[c]:.4g}" for c in SUMMARY_COLUMNS[2:-1]]
+        vals = [f"{m.summary[c]:.4g}" for c in METRIC_COLUMNS]
         lines.append(f"| {m.name} | {m.trials} | " + " | ".join(vals) + f" | {m.runtime_s:.2f} |")
-    vals = [f"{crlb_summary[c]:.4g}" for c in SUMMARY_COLUMNS[2:-1]]
+    vals = [f"{crlb_summary[c]:.4g}" for c in METRIC_COLUMNS]
     lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
     notes = [f"- {m.name}: {note}" for m in res.methods for note in m.notes.values()]
     if notes:
@@ -146,43 +160,135 @@ def summary_markdown(res: BenchResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_bench(res: BenchResult, out_dir: str | Path) -> list[Path]:
-    """Write rms.csv, summary.csv, summary.md, crlb.csv and the plots into ``out_dir``.
-
-    Everything is rendered in memory first; each file is then replaced atomically.
-    """
-    out = Path(out_dir)
+def bench_tables(res: BenchResult) -> dict[str, bytes]:
+    """The text files of a benchmark, rendered: rms.csv, summary.csv, summary.md, crlb.csv and
+    (if any method chose κ) kappa.csv."""
     rms_rows = [
         [m.name, float(t), *map(float, row)]
         for m in res.methods
         for t, row in zip(res.t, m.rms / DISPLAY_UNIT, strict=True)
     ]
-    files: dict[str, bytes | tuple[tuple[str, ...], list[list[object]]]] = {
-        "rms.csv": (("method", "t_s", *STATE_COLUMNS), rms_rows),
-        "summary.csv": (SUMMARY_COLUMNS, summary_rows(res)),
-        "summary.md": summary_markdown(res).encode(),
-        "rms_groups.png": rms_groups_png(res),
-        "rms_states.png": rms_states_png(res),
+    files = {
+        "rms.csv": csv_text(("method", "t_s", *STATE_COLUMNS), rms_rows),
+        "summary.csv": csv_text(SUMMARY_COLUMNS, summary_rows(res)),
+        "summary.md": summary_markdown(res),
+        "crlb.csv": crlb_csv_text(res.bound),
     }
+    if any(m.kappa is not None for m in res.methods):
+        files["kappa.csv"] = csv_text(("method", "trial", "t_s", "kappa"), kappa_rows(res))
+    return {name: text.encode() for name, text in files.items()}
+
+
+def bench_figures(res: BenchResult) -> dict[str, bytes]:
+    """The figures of a benchmark as PNG bytes."""
+    figs = {"rms_groups.png": rms_groups_png(res), "rms_states.png": rms_states_png(res)}
     kpng = kappa_png(res)
     if kpng is not None:
-        files["kappa.png"] = kpng
-        files["kappa.csv"] = (("method", "trial", "t_s", "kappa"), kappa_rows(res))
+        figs["kappa.png"] = kpng
+    return figs
+
+
+def bench_manifest(res: BenchResult, command: list[str] | None = None) -> dict[str, Any]:
+    """``run.json`` of a benchmark (docs/architecture.md, "Output files")."""
+    return manifest(
+        "bench",
+        res.config.model_dump(mode="json"),
+        command,
+        methods=[{"name": m.name, "spec": m.spec} for m in res.methods],
+        trials=res.trials,
+        seed=res.seed,
+        backend=res.backend,
+        workers=res.workers,
+    )
+
+
+def write_bench(
+    res: BenchResult, out_dir: str | Path, command: list[str] | None = None
+) -> list[Path]:
+    """Write the files of a benchmark into ``out_dir``, replacing any earlier run there whole.
+
+    Everything is rendered in memory first, written into a staging directory beside
+    ``out_dir`` and swapped in when complete (:func:`qkf.core.io.staged_directory`).
+    """
+    files = {**bench_tables(res), **bench_figures(res)}
+    out = Path(out_dir)
+    with staged_directory(out) as stage:
+        for name, content in files.items():
+            atomic_write_bytes(stage / name, content)
+        write_manifest(stage, bench_manifest(res, command))
+    return [out / name for name in (*files, "run.json")]
+
+
+def _read_rows(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        raise ConfigError(f"{path}: missing (not a complete qkf bench folder)")
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def load_bench(folder: str | Path) -> BenchResult:
+    """A finished benchmark read back from its files (``run.json``, ``rms.csv``, ``crlb.csv``,
+    ``summary.csv``, ``kappa.csv``), for redrawing its figures."""
+    folder = Path(folder)
+    info = read_manifest(folder, "bench")
+    cfg = validate(Config, info["config"], str(folder / "run.json"), "configuration")
+    unit = DISPLAY_UNIT
+    crlb_rows = _read_rows(folder / "crlb.csv")
+    t = np.array([float(r["t_s"]) for r in crlb_rows])
+    bound = np.array([[float(r[c]) for c in STATE_COLUMNS] for r in crlb_rows]) * unit
+    per_method: dict[str, list[list[float]]] = defaultdict(list)
+    for r in _read_rows(folder / "rms.csv"):
+        per_method[r["method"]].append([float(r[c]) for c in STATE_COLUMNS])
+    kappa: dict[str, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
+    kappa_t: list[float] = []
+    if (folder / "kappa.csv").is_file():
+        for r in _read_rows(folder / "kappa.csv"):
+            kappa[r["method"]][int(r["trial"])].append(float(r["kappa"]))
+            if not kappa_t or float(r["t_s"]) > kappa_t[-1]:
+                kappa_t.append(float(r["t_s"]))
+    methods = []
+    for r in _read_rows(folder / "summary.csv"):
+        name = r["method"]
+        traces = kappa.get(name)
+        methods.append(
+            MethodResult(
+                name=name,
+                rms=np.array(per_method[name]) * unit,
+                trials=int(r["trials"]),
+                diverged=int(r["diverged"]),
+                runtime_s=float(r["runtime_s"]),
+                summary={c: float(r[c]) for c in METRIC_COLUMNS},
+                kappa=np.array([traces[i] for i in sorted(traces)]) if traces else None,
+            )
+        )
+    return BenchResult(
+        config=cfg,
+        seed=int(info["seed"]),
+        trials=int(info["trials"]),
+        t=t,
+        methods=methods,
+        bound=CrlbResult(t=t, bound=bound, cov=np.empty((0, 15, 15))),
+        kappa_t=np.array(kappa_t),
+        backend=str(info.get("backend", "local")),
+        workers=int(info.get("workers", 1)),
+    )
+
+
+def redraw_bench(folder: str | Path) -> list[Path]:
+    """Redraw every figure of a finished benchmark from its files; returns the figures."""
+    folder = Path(folder)
     written = []
-    for name, content in files.items():
-        path = out / name
-        if isinstance(content, bytes):
-            atomic_write_bytes(path, content)
-        else:
-            atomic_write_csv(path, *content)
-        written.append(path)
-    write_crlb_csv(out / "crlb.csv", res.bound)
-    written.append(out / "crlb.csv")
+    for name, content in bench_figures(load_bench(folder)).items():
+        atomic_write_bytes(folder / name, content)
+        written.append(folder / name)
     return written
 
 
 __all__ = [
+    "METRIC_COLUMNS",
     "SUMMARY_COLUMNS",
+    "load_bench",
+    "redraw_bench",
     "rms_groups_png",
     "summary_markdown",
     "write_bench",

@@ -19,7 +19,9 @@ A case may name its own ``base``. Output: one folder per case (the files of ``qk
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import shutil
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -29,14 +31,25 @@ from pydantic import Field
 
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
-from qkf.core.io import atomic_write_bytes, atomic_write_csv, slug
+from qkf.core.io import (
+    OutputError,
+    atomic_write_bytes,
+    atomic_write_csv,
+    check_output_dir,
+    slug,
+    staged_directory,
+)
+from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
-from qkf.transfer_alignment.benchmark import BenchResult, run_benchmark
+from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.transfer_alignment.methods import NamedMethod
 from qkf.transfer_alignment.metrics import group_rms, summarize
 from qkf.transfer_alignment.report import (
+    METRIC_COLUMNS,
     SUMMARY_COLUMNS,
+    load_bench,
     summary_rows,
     write_bench,
     write_crlb_csv,
@@ -80,7 +93,7 @@ class CaseResult:
 
 def run_case(
     case: CaseRun,
-    methods: list[str] | None,
+    methods: list[Any] | None,
     trials: int | None = None,
     seed: int | None = None,
     progress: bool = True,
@@ -99,51 +112,145 @@ def case_rows(result: CaseResult) -> list[list[object]]:
     """Summary rows of a case, the case label first (``study.csv``, ``sweep_summary.csv``)."""
     if result.bench is None:
         summary = summarize(result.bound.bound / DISPLAY_UNIT)
-        return [[result.case.label, "crlb", 0, *summary.values(), 0.0]]
+        return [[result.case.label, "crlb", 0, 0, *summary.values(), 0.0]]
     return [[result.case.label, *row] for row in summary_rows(result.bench)]
 
 
 def write_case(result: CaseResult, folder: Path) -> list[Path]:
-    """The files of one case: those of ``qkf bench``, or ``crlb.csv`` alone."""
-    if result.bench is None:
-        write_crlb_csv(folder / "crlb.csv", result.bound)
-        return [folder / "crlb.csv"]
-    return write_bench(result.bench, folder)
+    """The files of one case, written as one: those of ``qkf bench``, or ``crlb.csv`` and
+    ``run.json``."""
+    if result.bench is not None:
+        return write_bench(result.bench, folder)
+    with staged_directory(folder) as stage:
+        write_crlb_csv(stage / "crlb.csv", result.bound)
+        write_manifest(stage, manifest("crlb", result.case.cfg.model_dump(mode="json")))
+    return [folder / "crlb.csv", folder / "run.json"]
+
+
+def _finished(case: CaseRun, folder: Path, methods: list[Any], trials: int, seed: int) -> bool:
+    """A case folder that holds a complete benchmark of exactly this case."""
+    try:
+        info = read_manifest(folder, "bench")
+    except ConfigError:
+        return False
+    specs = [m.get("spec") for m in info.get("methods", [])]
+    wanted = [m.spec if isinstance(m, NamedMethod) else m for m in methods]
+    return (
+        info["config"] == case.cfg.model_dump(mode="json")
+        and specs == wanted
+        and info.get("trials") == trials
+        and info.get("seed") == seed
+    )
+
+
+def prepare_output(out: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse an output folder that holds something else, unless told to resume or replace.
+
+    A study or sweep writes each case folder whole as soon as it is done, so an interrupted run
+    can be finished with ``resume`` (finished cases are read back, not recomputed).
+    """
+    check_output_dir(out)
+    if resume and overwrite:
+        raise OutputError("--resume and --overwrite exclude each other")
+    if out.is_dir() and any(out.iterdir()) and not (resume or overwrite):
+        raise OutputError(
+            f"{out}: holds an earlier run; --resume finishes it, --overwrite replaces it"
+        )
+
+
+def run_cases(
+    cases: list[CaseRun],
+    methods: list[Any] | None,
+    out: Path,
+    trials: int,
+    seed: int,
+    resume: bool = False,
+    on_case: Callable[[CaseRun, Path, bool], None] | None = None,
+    **bench: Any,
+) -> list[CaseResult]:
+    """Run the cases into ``out/<case folder>/``, each written whole as soon as it is done;
+    with ``resume``, a case whose folder already holds its complete run is read back instead.
+    ``on_case(case, folder, reused)`` is called after each. ``bench``: ``run_benchmark``
+    options (progress, backend, workers)."""
+    results = []
+    for case in cases:
+        folder = out / case.folder
+        reused = resume and methods is not None and _finished(case, folder, methods, trials, seed)
+        if reused:
+            result = CaseResult(case, crlb(case.cfg), load_bench(folder))
+        else:
+            result = run_case(case, methods, trials, seed, **bench)
+            write_case(result, folder)
+        results.append(result)
+        if on_case is not None:
+            on_case(case, folder, reused)
+    return results
+
+
+def _remove_stale(out: Path, keep: set[str]) -> None:
+    """Remove what an earlier run left in ``out`` that this run did not write: case folders
+    (recognised by their ``run.json``) and the summary files of studies and sweeps."""
+    ours = {"study.csv", "study.png", "sweep_summary.csv", "run.json"}
+    for entry in out.iterdir():
+        if entry.name in keep:
+            continue
+        if entry.is_dir() and (entry / "run.json").is_file():
+            shutil.rmtree(entry)
+        elif entry.is_file() and entry.name in ours:
+            entry.unlink()
+
+
+@contextmanager
+def _output(out: Path, resume: bool, overwrite: bool) -> Iterator[Path]:
+    """Where a study or sweep writes: ``out`` itself (fresh or resumed), or, with
+    ``overwrite``, a staging folder swapped in whole at the end."""
+    prepare_output(out, resume, overwrite)
+    if overwrite:
+        with staged_directory(out) as stage:
+            yield stage
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        yield out
 
 
 # ---- sweeps: one config value over a list (``sweep:`` in a scenario config) -------------------
 
 
 def sweep_cases(config: str | Path, sets: list[str], cfg: Config) -> list[CaseRun]:
-    """The cases of ``cfg.sweep``: the config reloaded with ``--set key=value`` per value."""
+    """The cases of ``cfg.sweep``: the config reloaded with ``--set key=value`` per value (each
+    case's own config has no sweep: its manifest reruns that case alone)."""
     assert cfg.sweep is not None
     key = cfg.sweep.key
     leaf = key.split(".")[-1]
-    return [
-        CaseRun(str(v), f"{leaf}={slug(v)}", load_config(config, [*sets, f"{key}={v}"]))
-        for v in cfg.sweep.values
-    ]
+    cases = []
+    for v in cfg.sweep.values:
+        case_cfg = load_config(config, [*sets, f"{key}={v}"]).model_copy(update={"sweep": None})
+        cases.append(CaseRun(str(v), f"{leaf}={slug(v)}", case_cfg))
+    return cases
 
 
 def run_sweep(
     cases: list[CaseRun],
     key: str,
-    methods: list[str],
+    methods: list[Any],
     out_dir: str | Path,
-    on_case: Callable[[CaseRun, Path], None] | None = None,
+    trials: int | None = None,
+    seed: int | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    on_case: Callable[[CaseRun, Path, bool], None] | None = None,
     **bench: Any,
 ) -> Path:
     """Run each case into ``OUT/<leaf>=<value>/`` (written as soon as it is done), then
     ``OUT/sweep_summary.csv``; returns the latter. ``bench``: options of ``run_benchmark``."""
     out = Path(out_dir)
-    rows: list[list[object]] = []
-    for case in cases:
-        result = run_case(case, methods, **bench)
-        write_case(result, out / case.folder)
-        rows += case_rows(result)
-        if on_case is not None:
-            on_case(case, out / case.folder)
-    atomic_write_csv(out / "sweep_summary.csv", (key, *SUMMARY_COLUMNS), rows)
+    run = cases[0].cfg.run
+    n, s = trials or run.trials, run.seed if seed is None else seed
+    with _output(out, resume, overwrite) as where:
+        results = run_cases(cases, methods, where, n, s, resume, on_case, **bench)
+        rows = [row for r in results for row in case_rows(r)]
+        atomic_write_csv(where / "sweep_summary.csv", (key, *SUMMARY_COLUMNS), rows)
+        _remove_stale(where, {c.folder for c in cases} | {"sweep_summary.csv"})
     return out / "sweep_summary.csv"
 
 
@@ -153,43 +260,54 @@ def run_sweep(
 def load_study(path: str | Path) -> tuple[Study, list[Config]]:
     """Read a study (a path or a preset name) and the config of each case.
 
-    ``ConfigError`` names the file and the field.
+    ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, "studies")
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
-    if study.kind == "bench" and study.metric not in SUMMARY_COLUMNS[2:-1]:
-        raise ConfigError(f"{path}: metric: must be one of {', '.join(SUMMARY_COLUMNS[2:-1])}")
-    configs = [
-        load_config((path.parent / (case.base or study.base)).resolve(), case.set)
-        for case in study.cases
-    ]
+    if study.kind == "bench" and study.metric not in METRIC_COLUMNS:
+        raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
+    if study.kind == "bench":
+        try:
+            parse_methods(study.methods)
+        except ValueError as exc:
+            raise ConfigError(f"{path}: methods: {exc}") from None
+    configs = []
+    for i, case in enumerate(study.cases):
+        try:
+            configs.append(
+                load_config((path.parent / (case.base or study.base)).resolve(), case.set)
+            )
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: cases.{i} ({case.label}): {exc}") from None
     return study, configs
 
 
-def run_study(path: str | Path, out_dir: str | Path, progress: bool = True) -> list[Path]:
-    """Run every case, then write the case folders, ``study.csv`` and ``study.png``."""
+def run_study(
+    path: str | Path,
+    out_dir: str | Path,
+    progress: bool = True,
+    resume: bool = False,
+    overwrite: bool = False,
+    on_case: Callable[[CaseRun, Path, bool], None] | None = None,
+) -> list[Path]:
+    """Run every case (each case folder written as soon as it is done), then ``study.csv`` and
+    ``study.png``."""
     study, configs = load_study(path)
     out = Path(out_dir)
     methods = study.methods if study.kind == "bench" else None
-    results = [
-        run_case(
-            CaseRun(case.label, slug(case.label).strip("_") or "case", cfg),
-            methods,
-            study.trials,
-            study.seed,
-            progress,
-        )
+    cases = [
+        CaseRun(case.label, slug(case.label).strip("_") or "case", cfg)
         for case, cfg in zip(study.cases, configs, strict=True)
     ]
-    # everything computed: now write
-    written: list[Path] = []
-    rows: list[list[object]] = []
-    for result in results:
-        written += write_case(result, out / result.case.folder)
-        rows += case_rows(result)
-    atomic_write_csv(out / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
-    atomic_write_bytes(out / "study.png", _study_png(study, _curves(results), rows))
-    return [*written, out / "study.csv", out / "study.png"]
+    with _output(out, resume, overwrite) as where:
+        results = run_cases(
+            cases, methods, where, study.trials, study.seed, resume, on_case, progress=progress
+        )
+        rows = [row for r in results for row in case_rows(r)]
+        atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
+        atomic_write_bytes(where / "study.png", _study_png(study, _curves(results), rows))
+        _remove_stale(where, {c.folder for c in cases} | {"study.csv", "study.png"})
+    return [*(out / c.folder for c in cases), out / "study.csv", out / "study.png"]
 
 
 Curve = tuple[str, np.ndarray, dict[str, np.ndarray], bool]  # label, t, group RMS, is bound

@@ -13,7 +13,9 @@ once and returns a :class:`MethodOutput` (contract: :mod:`.base`). ``qkf bench -
 ``package.module:function``
     any importable function — no registration needed;
 ``LABEL=SPEC``
-    any of the above, shown as ``LABEL`` in tables and plots.
+    any of the above, shown as ``LABEL`` in tables and plots (a method may suggest its own
+    short name through a ``default_label`` attribute: ``policy:PATH`` uses the model's file
+    stem, or its folder's name for the usual ``model.zip``/``model.npz``).
 """
 
 from __future__ import annotations
@@ -61,10 +63,12 @@ class MethodSpecError(ValueError):
 
 @dataclass(frozen=True)
 class NamedMethod:
-    """A resolved method and the name it is reported under."""
+    """A resolved method, the name it is reported under and the spec it came from (None for a
+    method passed as an object: such a run cannot be repeated from its manifest)."""
 
     name: str
     method: Method
+    spec: str | None = None
 
 
 def resolve_method(spec: str) -> NamedMethod:
@@ -84,7 +88,9 @@ def resolve_method(spec: str) -> NamedMethod:
         raise MethodSpecError(str(exc)) from None
     if not callable(method):
         raise MethodSpecError(f"{target!r} is not callable")
-    return NamedMethod(label or target, method)
+    # a factory may suggest a shorter name than its spec (policy:PATH → the model's folder)
+    default = getattr(method, "default_label", None)
+    return NamedMethod(label or (default if isinstance(default, str) else target), method, spec)
 
 
 def _resolve_target(target: str) -> Method:
