@@ -279,17 +279,54 @@ def train_cmd(
     seed: Annotated[int | None, typer.Option(help="Seed (config: seed).")] = None,
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Go on from the newest checkpoint in --out although the config differs (only "
+            "total_steps, episodes, eval.every_steps, torch_threads may).",
+        ),
+    ] = False,
+    force_new: Annotated[
+        bool,
+        typer.Option(
+            "--force-new", help="Discard the run in --out (model, checkpoints, logs); start over."
+        ),
+    ] = False,
 ) -> None:
-    """Train the agent named in the config; saves model.zip / model.npz and config.yaml."""
-    from agents.config import load_train_config
-    from agents.training import train
+    """Train the agent named in the config; saves model.zip / model.npz, config.yaml,
+    training.json, checkpoints/, eval/, best/ and tb/.
+
+    A rerun into the same --out with the same config goes on from the newest checkpoint; with
+    another config it is refused (the differing fields are listed) unless --resume or
+    --force-new.
+    """
+    if resume and force_new:
+        raise _fail("--resume and --force-new exclude each other")
+    from agents.config import load_train_config, train_config_source
+    from agents.training import plan_training, run_training
 
     sets = list(set_ or []) + ([f"seed={seed}"] if seed is not None else [])
     try:
         cfg = load_train_config(config, sets)
+        plan = plan_training(
+            cfg,
+            out_dir,
+            resume=resume,
+            force_new=force_new,
+            source=train_config_source(config, sets),
+        )
     except ConfigError as exc:
         raise _fail(str(exc)) from None
-    path = train(cfg, out_dir, progress=not quiet)
+    for note in plan.notes:
+        out.print(note, soft_wrap=True, markup=False, highlight=False)
+    if plan.complete:
+        out.print(f"{plan.model_path} is up to date (--force-new retrains)")
+        return
+    try:
+        path = run_training(plan, progress=not quiet)
+    except ConfigError as exc:  # hyperparameter values the algorithm refuses; nothing written
+        raise _fail(str(exc)) from None
     out.print(f"wrote {path}")
 
 

@@ -220,9 +220,8 @@ def test_sb3_training_resumes_from_the_last_checkpoint(tmp_path: Path) -> None:
     assert first
     from stable_baselines3 import PPO
 
-    train(
-        load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=128"]), tmp_path, False
-    )
+    longer = load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=128"])
+    train(longer, tmp_path, False, resume=True)  # a changed total_steps needs --resume
     model = PPO.load(tmp_path / "model.zip", device="cpu")
     assert model.num_timesteps == 128  # 64 from the checkpoint, 64 more: not 128 from scratch + 64
     assert len(sorted((tmp_path / "checkpoints").glob("*.zip"))) > len(first)

@@ -65,3 +65,33 @@ class ErrorAccumulator:
         if self.sum_sq is None or self.count == 0:
             raise ValueError("no trials accumulated")
         return np.sqrt(self.sum_sq / self.count)
+
+
+def resample_counts(n_trials: int, n_resamples: int, seed: int) -> np.ndarray:
+    """Bootstrap resamples of trial indices as counts: row r says how often each trial is drawn
+    in resample r (each row sums to ``n_trials``). Seeded, so intervals are reproducible.
+
+    Counts instead of index lists make every resampled mean one matrix product.
+    """
+    rng = np.random.default_rng([seed, 0xB0075])
+    p = np.full(n_trials, 1.0 / n_trials)
+    return rng.multinomial(n_trials, p, size=n_resamples).astype(np.float64)
+
+
+def bootstrap_rms(ms: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """RMS over trials of each resample: ``sqrt(Σ_i c_ri ms_i / n)``.
+
+    ``ms`` (n_trials, ...) are per-trial mean squares; ``counts`` (R, n_trials) from
+    :func:`resample_counts`. Returns (R, ...).
+    """
+    n = ms.shape[0]
+    flat = ms.reshape(n, -1)
+    out = np.sqrt(counts @ flat / n)
+    return out.reshape(counts.shape[0], *ms.shape[1:])
+
+
+def percentile_interval(samples: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Percentile interval over the first axis (bootstrap replicates)."""
+    tail = 50.0 * (1.0 - level)
+    lo, hi = np.percentile(samples, [tail, 100.0 - tail], axis=0)
+    return lo, hi

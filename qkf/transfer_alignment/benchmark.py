@@ -18,7 +18,7 @@ from functools import partial
 import numpy as np
 
 from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
-from qkf.core.stats import ErrorAccumulator
+from qkf.core.stats import ErrorAccumulator, bootstrap_rms, percentile_interval, resample_counts
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.methods import (
@@ -30,7 +30,7 @@ from qkf.transfer_alignment.methods import (
     validate_output,
 )
 from qkf.transfer_alignment.methods.base import decision_steps
-from qkf.transfer_alignment.metrics import state_errors, summarize
+from qkf.transfer_alignment.metrics import METRIC_COLUMNS, state_errors, trial_mean_squares
 from qkf.transfer_alignment.params import n_epochs
 from qkf.transfer_alignment.scenario import simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
@@ -44,9 +44,10 @@ class MethodResult:
     trials: int
     diverged: int
     runtime_s: float
-    summary: dict[str, float] = field(default_factory=dict)  # display units
+    summary: dict[str, float] = field(default_factory=dict)  # display units, with _lo/_hi
     kappa: np.ndarray | None = None  # (trials, T) κ in use at the sampling times
     notes: dict[str, str] = field(default_factory=dict)
+    trial_values: np.ndarray | None = None  # (trials, K) per-trial metrics, display units
 
 
 @dataclass
@@ -60,6 +61,7 @@ class BenchResult:
     kappa_t: np.ndarray  # (T,) s, the times at which κ traces are sampled
     backend: str = "local"
     workers: int = 1
+    paired: list[PairedRatio] = field(default_factory=list)
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -95,6 +97,7 @@ class ChunkResult:
     """What one chunk of trials contributes, per method (summed in chunk order afterwards)."""
 
     sum_sq: dict[str, np.ndarray]  # (N, 15) sums over the chunk's trials of squared errors
+    trial_ms: dict[str, np.ndarray]  # (B, K) per-trial mean squares of the metrics, display
     count: int
     diverged: dict[str, int]
     runtime_s: dict[str, float]
@@ -107,13 +110,14 @@ def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarra
     n = n_epochs(cfg.scenario)
     sample = np.arange(0, n, kappa_sampling(cfg))
     data = simulate(cfg, seed, ids)
-    res = ChunkResult({}, ids.size, {}, {}, {}, {})
+    res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
         t0 = time.perf_counter()
         out = validate_output(m.method(cfg, data), m.name, data.n_trials, n)
         res.runtime_s[m.name] = time.perf_counter() - t0
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
         res.sum_sq[m.name] = np.sum(err * err, axis=0)
+        res.trial_ms[m.name] = trial_mean_squares(err / DISPLAY_UNIT, data.t, cfg.run.settled_s)
         res.diverged[m.name] = int(np.count_nonzero(out.diverged))
         res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
         res.notes[m.name] = dict(out.notes)
@@ -153,6 +157,7 @@ def run_benchmark(
     acc = {m: ErrorAccumulator(n) for m in labels}
     runtime = dict.fromkeys(labels, 0.0)
     kappas: dict[str, list[np.ndarray]] = {m: [] for m in labels}
+    trial_ms: dict[str, list[np.ndarray]] = {m: [] for m in labels}
     notes: dict[str, dict[str, str]] = {m: {} for m in labels}
     task = partial(run_chunk, cfg, prepared, seed)
     chunks = chunk_ids(trials, cfg.run.chunk_trials)
@@ -161,14 +166,30 @@ def run_benchmark(
             for m in labels:
                 acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
                 runtime[m] += res.runtime_s[m]
+                trial_ms[m].append(res.trial_ms[m])
                 trace = res.kappa[m]
                 if trace is not None:
                     kappas[m].append(trace)
                 notes[m].update(res.notes[m])
             advance(res.count)
+    # per-trial metric values as written to trials.csv; the summary and its intervals are
+    # computed from exactly these numbers (summary = sqrt(mean over trials of value²))
+    values = {m: np.sqrt(np.concatenate(trial_ms[m])) for m in labels}
+    boot = cfg.run.bootstrap
+    counts = resample_counts(trials, boot.resamples, seed)
+    replicates = {m: bootstrap_rms(values[m] ** 2, counts) for m in labels}
     results = []
     for m in labels:
         rms = acc[m].rms()
+        point = column_rms(values[m])
+        lo, hi = percentile_interval(replicates[m], boot.level)
+        summary: dict[str, float] = {}
+        for j, col in enumerate(METRIC_COLUMNS):
+            summary[col], summary[f"{col}_lo"], summary[f"{col}_hi"] = (
+                float(point[j]),
+                float(lo[j]),
+                float(hi[j]),
+            )
         results.append(
             MethodResult(
                 name=m,
@@ -176,7 +197,8 @@ def run_benchmark(
                 trials=acc[m].count,
                 diverged=acc[m].diverged,
                 runtime_s=runtime[m],
-                summary=summarize(rms / DISPLAY_UNIT),
+                summary=summary,
+                trial_values=values[m],
                 kappa=np.concatenate(kappas[m]) if kappas[m] else None,
                 notes=notes[m],
                 spec=specs[m],
@@ -192,4 +214,63 @@ def run_benchmark(
         kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
         backend=backend,
         workers=workers,
+        paired=paired_ratios(labels, values, replicates, baselines(cfg, labels), boot.level),
     )
+
+
+def column_rms(values: np.ndarray) -> np.ndarray:
+    """``sqrt(mean(v²))`` of each column of (trials, K), column by column as 1-D arrays, so that
+    recomputing a summary value from one column of trials.csv gives the same bits."""
+    return np.array([np.sqrt(np.mean(np.ascontiguousarray(col) ** 2)) for col in values.T])
+
+
+@dataclass(frozen=True)
+class PairedRatio:
+    """``method`` RMS / ``baseline`` RMS on one metric, with its paired bootstrap interval."""
+
+    method: str
+    baseline: str
+    metric: str
+    ratio: float
+    lo: float
+    hi: float
+
+    @property
+    def verdict(self) -> str:
+        """``better`` (interval below 1), ``worse`` (above 1) or ``inconclusive``."""
+        if self.hi < 1.0:
+            return "better"
+        if self.lo > 1.0:
+            return "worse"
+        return "inconclusive"
+
+
+def baselines(cfg: Config, labels: list[str]) -> list[str]:
+    """The baselines of the paired comparisons: ``kf`` and ``run.baseline``, those that ran."""
+    return [b for b in dict.fromkeys(["kf", cfg.run.baseline]) if b in labels]
+
+
+def paired_ratios(
+    labels: list[str],
+    values: dict[str, np.ndarray],
+    replicates: dict[str, np.ndarray],
+    bases: list[str],
+    level: float,
+) -> list[PairedRatio]:
+    """Every method against every baseline, every metric: the RMS ratio on all trials and its
+    percentile interval over the *same* resamples of trials for both (a paired bootstrap)."""
+    out = []
+    for base in bases:
+        point_b = column_rms(values[base])
+        for m in labels:
+            if m == base:
+                continue
+            point = column_rms(values[m])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = point / point_b
+                lo, hi = percentile_interval(replicates[m] / replicates[base], level)
+            out += [
+                PairedRatio(m, base, col, float(ratio[j]), float(lo[j]), float(hi[j]))
+                for j, col in enumerate(METRIC_COLUMNS)
+            ]
+    return out

@@ -149,6 +149,13 @@ class FilterConfig(StrictModel):
     rate_noise_correlation: bool = True
 
 
+class Bootstrap(StrictModel):
+    """Percentile bootstrap over trials for the intervals of summary.csv and paired.csv."""
+
+    resamples: Annotated[int, Field(ge=100, le=1_000_000)] = 10_000
+    level: Annotated[float, Field(gt=0.5, lt=1.0)] = 0.95
+
+
 class RunConfig(StrictModel):
     trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 20
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
@@ -156,6 +163,9 @@ class RunConfig(StrictModel):
     chunk_trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 64
     workers: Annotated[int, Field(ge=1, le=1024)] = 1  # local backend: processes (1 = here)
     ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
+    settled_s: NonNegativeFloat = 400.0  # start of the settled window of the summary metrics
+    baseline: str = "kf"  # the method others are compared with (paired.csv), if it is run
+    bootstrap: Bootstrap = Bootstrap()
 
 
 class ActionSet(StrictModel):

@@ -42,17 +42,67 @@ def group_rms(ms_per_state: np.ndarray) -> dict[str, np.ndarray]:
     return {g: np.sqrt(np.mean(ms_per_state[..., sl], axis=-1)) for g, sl in GROUPS.items()}
 
 
-def summarize(rms: np.ndarray, final_fraction: float = 0.2) -> dict[str, float]:
-    """Group RMS over the last ``final_fraction`` of epochs (``_final``) and over all (``_avg``).
+WINDOWS: tuple[str, ...] = ("final", "avg", "settled")
+"""Time windows of the summary metrics: the last 20 % of the run, the whole run, and from
+``run.settled_s`` to the end (where adaptation is judged: docs/methods.md)."""
 
-    ``rms`` (n_epochs, 15) is the RMS over trials per epoch; the result is the root of the mean
-    square over epochs and over the group's components.
-    """
-    n = rms.shape[0]
-    start = min(n - 1, int(np.floor(n * (1.0 - final_fraction))))
+METRIC_COLUMNS: tuple[str, ...] = tuple(f"{g}_{w}" for g in GROUPS for w in WINDOWS)
+"""Summary metrics in column order: ``<group>_<window>``."""
+
+FINAL_FRACTION = 0.2
+
+
+def window_masks(t: np.ndarray, settled_s: float) -> dict[str, np.ndarray]:
+    """Epoch masks of the windows (N,) bool; a window is never empty (at least the last epoch)."""
+    n = t.size
+    start = min(n - 1, int(np.floor(n * (1.0 - FINAL_FRACTION))))
+    final = np.arange(n) >= start
+    settled = t >= settled_s - 1e-9
+    if not settled.any():
+        settled = np.arange(n) == n - 1
+    return {"final": final, "avg": np.ones(n, dtype=bool), "settled": settled}
+
+
+def trial_mean_squares(err: np.ndarray, t: np.ndarray, settled_s: float) -> np.ndarray:
+    """Per trial, the mean square of each metric (B, K) in :data:`METRIC_COLUMNS` order: over
+    the window's epochs and the group's components. ``err`` (B, N, 15), any units."""
+    masks = window_masks(t, settled_s)
+    sq = err * err
+    cols = []
+    for sl in GROUPS.values():
+        group = np.mean(sq[..., sl], axis=-1)  # (B, N)
+        cols += [np.mean(group[:, masks[w]], axis=1) for w in WINDOWS]
+    return np.stack(cols, axis=1)
+
+
+def summarize(rms: np.ndarray, t: np.ndarray, settled_s: float) -> dict[str, float]:
+    """The metrics of an RMS-over-trials curve (N, 15) (e.g. the CRLB): root mean square over
+    each window's epochs and the group's components."""
+    masks = window_masks(t, settled_s)
     ms = rms * rms
+    return {
+        f"{g}_{w}": float(np.sqrt(np.mean(ms[masks[w]][:, sl])))
+        for g, sl in GROUPS.items()
+        for w in WINDOWS
+    }
+
+
+def recovery_times(
+    rms: np.ndarray, t: np.ndarray, jump_s: float, settled_s: float, factor: float = 1.5
+) -> dict[str, float]:
+    """Per group, the time from a calibration jump at ``jump_s`` until the group RMS (over
+    trials, (N, 15)) is back within ``factor`` × its settled pre-jump level (RMS over
+    ``[settled_s, jump_s)``); NaN when there is no settled stretch before the jump or the RMS
+    never comes back."""
     out: dict[str, float] = {}
+    before = (t >= settled_s - 1e-9) & (t < jump_s - 1e-9)
+    after = t >= jump_s - 1e-9
     for g, sl in GROUPS.items():
-        out[f"{g}_final"] = float(np.sqrt(np.mean(ms[start:, sl])))
-        out[f"{g}_avg"] = float(np.sqrt(np.mean(ms[:, sl])))
+        curve = np.sqrt(np.mean(rms[:, sl] ** 2, axis=-1))
+        if not before.any() or not after.any():
+            out[g] = float("nan")
+            continue
+        level = np.sqrt(np.mean(curve[before] ** 2))
+        back = np.flatnonzero(after & (curve <= factor * level))
+        out[g] = float(t[back[0]] - jump_s) if back.size else float("nan")
     return out

@@ -17,13 +17,27 @@ from qkf.core.plotting import figure_png, plt
 from qkf.transfer_alignment.benchmark import BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
-from qkf.transfer_alignment.metrics import group_rms, summarize
-from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, GROUPS, STATE_COLUMNS
+from qkf.transfer_alignment.metrics import (
+    METRIC_COLUMNS,
+    WINDOWS,
+    group_rms,
+    recovery_times,
+    summarize,
+)
+from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, STATE_COLUMNS
 
-METRIC_COLUMNS: tuple[str, ...] = tuple(f"{g}_{kind}" for g in GROUPS for kind in ("final", "avg"))
-"""Summary metrics: per state group, ``_final`` (last 20 % of the run) and ``_avg``."""
+SUMMARY_COLUMNS: tuple[str, ...] = (
+    "method",
+    "trials",
+    "diverged",
+    *(f"{c}{suffix}" for c in METRIC_COLUMNS for suffix in ("", "_lo", "_hi")),
+    "runtime_s",
+)
+"""summary.csv: each metric followed by its bootstrap interval (``_lo``, ``_hi``)."""
 
-SUMMARY_COLUMNS: tuple[str, ...] = ("method", "trials", "diverged", *METRIC_COLUMNS, "runtime_s")
+TRIAL_COLUMNS: tuple[str, ...] = ("method", "trial", *METRIC_COLUMNS)
+PAIRED_COLUMNS: tuple[str, ...] = ("method", "baseline", "metric", "ratio", "lo", "hi")
+UNITS = {"att_arcsec": "arcsec", "bias_degph": "deg/h", "sf_ppm": "ppm", "ma_urad": "µrad"}
 
 
 def crlb_csv_text(result: CrlbResult) -> str:
@@ -117,22 +131,47 @@ def summary_rows(res: BenchResult) -> list[list[object]]:
             m.name,
             m.trials,
             m.diverged,
-            *(m.summary[c] for c in METRIC_COLUMNS),
+            *(m.summary[c] for c in SUMMARY_COLUMNS[3:-1]),
             round(m.runtime_s, 3),
         ]
         for m in res.methods
     ]
 
 
+def trial_rows(res: BenchResult) -> list[list[object]]:
+    """trials.csv: every metric of every trial, per method (display units)."""
+    rows: list[list[object]] = []
+    for m in res.methods:
+        if m.trial_values is None:
+            continue
+        rows += [[m.name, i, *map(float, v)] for i, v in enumerate(m.trial_values)]
+    return rows
+
+
+def paired_rows(res: BenchResult) -> list[list[object]]:
+    return [[p.method, p.baseline, p.metric, p.ratio, p.lo, p.hi] for p in res.paired]
+
+
+def _recovery(res: BenchResult) -> dict[str, dict[str, float]]:
+    jumps = res.config.scenario.calibration_jumps
+    if not jumps:
+        return {}
+    jump = min(j.t_s for j in jumps)
+    return {
+        m.name: recovery_times(m.rms, res.t, jump, res.config.run.settled_s) for m in res.methods
+    }
+
+
 def summary_markdown(res: BenchResult) -> str:
     cfg = res.config
-    crlb_summary = summarize(res.bound.bound / DISPLAY_UNIT)
+    crlb_summary = summarize(res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s)
+    verdicts = {(p.method, p.metric): p.verdict for p in res.paired if p.baseline == "kf"}
     head = ["method", "trials"]
-    units = {"att_arcsec": "arcsec", "bias_degph": "deg/h", "sf_ppm": "ppm", "ma_urad": "µrad"}
-    for g in GROUPS:
-        name = g.split("_")[0]
-        head += [f"{name} final [{units[g]}]", f"{name} avg [{units[g]}]"]
+    for g in GROUP_TITLES:
+        head += [f"{g.split('_')[0]} {w} [{UNITS[g]}]" for w in WINDOWS]
     head.append("runtime [s]")
+    mark = {"better": " ↓", "worse": " ↑", "inconclusive": ""}
+    level = 100 * cfg.run.bootstrap.level
     lines = [
         f"# qkf bench: {cfg.name}",
         "",
@@ -140,17 +179,38 @@ def summary_markdown(res: BenchResult) -> str:
         "",
         f"Trials: {res.trials}, seed: {res.seed}, matching: {cfg.filter.matching}, "
         f"q_p0 = {cfg.filter.qp0:g} /s, duration {cfg.scenario.duration_s:g} s.",
-        "RMS over trials; *final* = over the last 20 % of the run, *avg* = over the whole run; "
-        "a group's RMS is the root of the mean square over its components.",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
+        "RMS over trials; *final* = over the last 20 % of the run, *avg* = over the whole run, "
+        f"*settled* = from {cfg.run.settled_s:g} s on; a group's RMS is the root of the mean "
+        "square over its components. Intervals of every value are in summary.csv "
+        f"({level:g} % bootstrap over trials).",
     ]
+    if verdicts:
+        lines.append(
+            f"↓ / ↑: significantly lower / higher than `kf` (paired {level:g} % interval of the "
+            "RMS ratio below / above 1, paired.csv)."
+        )
+    lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m in res.methods:
-        vals = [f"{m.summary[c]:.4g}" for c in METRIC_COLUMNS]
+        vals = [
+            f"{m.summary[c]:.4g}{mark[verdicts.get((m.name, c), 'inconclusive')]}"
+            for c in METRIC_COLUMNS
+        ]
         lines.append(f"| {m.name} | {m.trials} | " + " | ".join(vals) + f" | {m.runtime_s:.2f} |")
     vals = [f"{crlb_summary[c]:.4g}" for c in METRIC_COLUMNS]
     lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
+    recovery = _recovery(res)
+    if recovery:
+        lines += [
+            "",
+            "Recovery after the calibration jump (s until the group RMS is back within 1.5× its "
+            "settled pre-jump level; – = not within the run):",
+            "",
+            "| method | " + " | ".join(GROUP_TITLES) + " |",
+            "|" + "---|" * (len(GROUP_TITLES) + 1),
+        ]
+        for name, rec in recovery.items():
+            cells = ["–" if np.isnan(v) else f"{v:g}" for v in rec.values()]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
     notes = [f"- {m.name}: {note}" for m in res.methods for note in m.notes.values()]
     if notes:
         lines += ["", *notes]
@@ -171,9 +231,12 @@ def bench_tables(res: BenchResult) -> dict[str, bytes]:
     files = {
         "rms.csv": csv_text(("method", "t_s", *STATE_COLUMNS), rms_rows),
         "summary.csv": csv_text(SUMMARY_COLUMNS, summary_rows(res)),
+        "trials.csv": csv_text(TRIAL_COLUMNS, trial_rows(res)),
         "summary.md": summary_markdown(res),
         "crlb.csv": crlb_csv_text(res.bound),
     }
+    if res.paired:
+        files["paired.csv"] = csv_text(PAIRED_COLUMNS, paired_rows(res))
     if any(m.kappa is not None for m in res.methods):
         files["kappa.csv"] = csv_text(("method", "trial", "t_s", "kappa"), kappa_rows(res))
     return {name: text.encode() for name, text in files.items()}
@@ -257,7 +320,7 @@ def load_bench(folder: str | Path) -> BenchResult:
                 trials=int(r["trials"]),
                 diverged=int(r["diverged"]),
                 runtime_s=float(r["runtime_s"]),
-                summary={c: float(r[c]) for c in METRIC_COLUMNS},
+                summary={c: float(r[c]) for c in SUMMARY_COLUMNS[3:-1]},
                 kappa=np.array([traces[i] for i in sorted(traces)]) if traces else None,
             )
         )
@@ -286,7 +349,9 @@ def redraw_bench(folder: str | Path) -> list[Path]:
 
 __all__ = [
     "METRIC_COLUMNS",
+    "PAIRED_COLUMNS",
     "SUMMARY_COLUMNS",
+    "TRIAL_COLUMNS",
     "load_bench",
     "redraw_bench",
     "rms_groups_png",

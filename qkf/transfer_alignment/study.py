@@ -45,9 +45,8 @@ from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_ben
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.methods import NamedMethod
-from qkf.transfer_alignment.metrics import group_rms, summarize
+from qkf.transfer_alignment.metrics import METRIC_COLUMNS, group_rms, summarize
 from qkf.transfer_alignment.report import (
-    METRIC_COLUMNS,
     SUMMARY_COLUMNS,
     load_bench,
     summary_rows,
@@ -111,9 +110,15 @@ def run_case(
 def case_rows(result: CaseResult) -> list[list[object]]:
     """Summary rows of a case, the case label first (``study.csv``, ``sweep_summary.csv``)."""
     if result.bench is None:
-        summary = summarize(result.bound.bound / DISPLAY_UNIT)
-        return [[result.case.label, "crlb", 0, 0, *summary.values(), 0.0]]
+        cfg = result.case.cfg
+        summary = summarize(result.bound.bound / DISPLAY_UNIT, result.bound.t, cfg.run.settled_s)
+        cells = [summary[c[: -len(s)] if (s := _suffix(c)) else c] for c in SUMMARY_COLUMNS[3:-1]]
+        return [[result.case.label, "crlb", 0, 0, *cells, 0.0]]
     return [[result.case.label, *row] for row in summary_rows(result.bench)]
+
+
+def _suffix(column: str) -> str:
+    return next((s for s in ("_lo", "_hi") if column.endswith(s)), "")
 
 
 def write_case(result: CaseResult, folder: Path) -> list[Path]:
