@@ -15,19 +15,45 @@
     eval: {episodes: 8, seed: 100000, every_steps: 20000}
     hyperparams: {}            # keyword arguments of the SB3 algorithm
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
+
+:func:`load_train_config` checks everything a training run will use before any work, and
+reports every problem at once, one line each (``FILE: dotted.field: message``): the schema,
+the action type against the agent, the scenario and its ``overrides`` (loaded as the run will
+load them), the ``hyperparams`` against the SB3 algorithm's constructor (this imports SB3, so
+only for SB3 agents: a tabular policy never loads torch) and the ``tabular`` settings.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
+import inspect
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator
 
-from agents.algorithms import ALGORITHMS
+from agents.algorithms import ALGORITHMS, algorithm_class
+from envs.episodes import OBS_SIZE
 from envs.rewards import REWARDS
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, load_model
+
+HEADER = "invalid training config"
+
+RESERVED_HYPERPARAMS = {
+    "policy": "set by qkf train (MlpPolicy); network options go in policy_kwargs",
+    "env": "set by qkf train (the environment of the config)",
+    "seed": "set by qkf train from the config's seed",
+    "device": "set by qkf train (cpu)",
+    "tensorboard_log": "set by qkf train (OUT/tb)",
+}
+"""Constructor arguments of an SB3 algorithm that ``qkf train`` passes itself."""
+
+RESERVED_TABULAR = {
+    "n_actions": "set by qkf train from the environment's actions",
+    "seed": "set by qkf train from the config's seed",
+}
 
 
 class EvalConfig(StrictModel):
@@ -67,12 +93,124 @@ class TrainConfig(StrictModel):
         return v
 
 
-def load_train_config(path: str | Path, sets: list[str] | None = None) -> TrainConfig:
+def train_config_source(path: str | Path, sets: list[str] | None = None) -> str:
+    """How messages name a training config: its resolved file, ``(with --set)`` if overridden."""
+    return f"{presets.resolve(path)}" + (" (with --set)" if sets else "")
+
+
+def load_train_config(
+    path: str | Path, sets: list[str] | None = None, *, check_scenario: bool = True
+) -> TrainConfig:
     """Read and validate a training config (path or preset name); ``ConfigError`` names the
-    file and the field."""
-    path = presets.resolve(path)
-    cfg = load_model(TrainConfig, path, sets, "training config")
-    allowed = ALGORITHMS[cfg.agent].action_types
-    if cfg.action_type not in allowed:
-        raise ConfigError(f"{path}: action_type: {cfg.agent} needs {' or '.join(allowed)} actions")
+    file and the field. ``check_scenario=False`` skips loading the scenario (a saved policy
+    acts on any scenario; its training scenario may be a path relative to another folder)."""
+    cfg = load_model(TrainConfig, presets.resolve(path), sets, "training config")
+    validate_train_config(cfg, train_config_source(path, sets), check_scenario=check_scenario)
     return cfg
+
+
+def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool = True) -> None:
+    """Check what the schema cannot: ``ConfigError`` with one line per problem."""
+    problems: list[str] = []
+    algo = ALGORITHMS[cfg.agent]
+    if cfg.action_type not in algo.action_types:
+        needs = " or ".join(algo.action_types)
+        problems.append(f"action_type: {cfg.agent} needs {needs} actions")
+    if check_scenario:
+        problems += _scenario_problems(cfg)
+    if algo.load is None:  # the tabular agent
+        if cfg.hyperparams:
+            problems.append(
+                "hyperparams: the tabular agent takes no SB3 hyperparameters (use tabular:)"
+            )
+        problems += _tabular_problems(cfg.tabular)
+    else:
+        if cfg.tabular:
+            problems.append(f"tabular: only the tabular agent reads it, not {cfg.agent}")
+        problems += _hyperparam_problems(algorithm_class(cfg.agent), cfg.hyperparams)
+    if problems:
+        raise ConfigError(f"{HEADER}\n  " + "\n  ".join(f"{source}: {p}" for p in problems))
+
+
+def _message_lines(exc: ConfigError) -> list[str]:
+    """The problem lines of a ``ConfigError`` (its ``invalid …`` header dropped)."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("invalid "):
+        lines = lines[1:]
+    return lines
+
+
+def _scenario_problems(cfg: TrainConfig) -> list[str]:
+    from qkf.transfer_alignment.config import load_config
+
+    if Path(cfg.scenario).is_dir():
+        return [f"scenario: {cfg.scenario}: is a directory, not a scenario file"]
+    try:
+        load_config(cfg.scenario)
+    except ConfigError as exc:
+        return [f"scenario: {line}" for line in _message_lines(exc)]
+    if cfg.overrides:
+        try:
+            load_config(cfg.scenario, list(cfg.overrides))
+        except ConfigError as exc:
+            return [f"overrides: {line}" for line in _message_lines(exc)]
+    return []
+
+
+def _unknown(key: str, known: list[str], owner: str) -> str:
+    close = difflib.get_close_matches(key, known, n=1)
+    return f"not a parameter of {owner}" + (f" (did you mean {close[0]}?)" if close else "")
+
+
+def _hyperparam_problems(cls: Any, hyperparams: dict[str, Any]) -> list[str]:
+    """Names against the algorithm's ``__init__``; the values are checked by the algorithm when
+    ``qkf train`` builds it (still before anything is written)."""
+    params = inspect.signature(cls.__init__).parameters
+    open_ended = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    known = [
+        n
+        for n, p in params.items()
+        if n != "self" and not n.startswith("_") and n not in RESERVED_HYPERPARAMS
+        and p.kind not in (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+    ]  # fmt: skip
+    problems = []
+    for key, value in hyperparams.items():
+        if key in RESERVED_HYPERPARAMS:
+            problems.append(f"hyperparams.{key}: {RESERVED_HYPERPARAMS[key]}")
+        elif key not in known and not open_ended:
+            problems.append(f"hyperparams.{key}: {_unknown(key, known, cls.__name__)}")
+        elif key == "n_steps" and (
+            isinstance(value, bool) or not isinstance(value, int) or value < 1
+        ):
+            problems.append(f"hyperparams.n_steps: must be a positive integer, got {value!r}")
+    return problems
+
+
+def _tabular_problems(tabular: dict[str, Any]) -> list[str]:
+    from agents.tabular import TabularQAgent
+
+    known = [
+        f.name
+        for f in dataclasses.fields(TabularQAgent)
+        if f.init and f.name not in RESERVED_TABULAR
+    ]
+    problems = []
+    for key in tabular:
+        if key in RESERVED_TABULAR:
+            problems.append(f"tabular.{key}: {RESERVED_TABULAR[key]}")
+        elif key not in known:
+            problems.append(f"tabular.{key}: {_unknown(key, known, 'the tabular agent')}")
+    if problems:
+        return problems
+    try:
+        agent = TabularQAgent(n_actions=2, **tabular)
+    except (TypeError, ValueError) as exc:
+        msg = str(exc)
+        field = msg.split(":", 1)[0]
+        if field.split(".")[0] in known:
+            return [f"tabular.{msg}"]
+        return [f"tabular: {msg}"]
+    outside = [d for d in agent.bins if d >= OBS_SIZE]
+    if outside:
+        return [f"tabular.bins: {outside[0]} is not an observation index (0 to {OBS_SIZE - 1})"]
+    return []

@@ -38,7 +38,8 @@ class Policy:
         cfg_file = path.parent / "config.yaml"
         if not cfg_file.is_file():
             raise ConfigError(f"{path}: no config.yaml beside the model")
-        self.cfg = load_train_config(cfg_file)
+        # any scenario will do: the training one may be a path relative to elsewhere
+        self.cfg = load_train_config(cfg_file, check_scenario=False)
         self._tab: Any = None
         self._sb3: Any = None
         if path.suffix == ".npz":

@@ -156,5 +156,6 @@ def test_sweep_runs_once_per_value(tmp_path: Path) -> None:
     assert (tmp_path / "attitude_sigma_arcsec=10/summary.csv").exists()
     rows = _read(tmp_path / "sweep_summary.csv")
     assert rows[0][0] == "scenario.ads.attitude_sigma_arcsec"
-    att = {r[0]: float(r[3]) for r in rows[1:]}  # att_arcsec_final
+    col = rows[0].index("att_arcsec_final")
+    att = {r[0]: float(r[col]) for r in rows[1:]}
     assert att["10"] > 2 * att["1"]  # more ADS noise, worse attitude

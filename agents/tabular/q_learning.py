@@ -7,14 +7,19 @@ the state is the tuple of bin indices, flattened. Learning is one-step Q-learnin
     Q(s, a) += α (r + γ (1 − terminated) max_a' Q(s', a') − Q(s, a))
 
 ``act(obs, deterministic=True)`` is greedy, ties broken towards the lowest action. Everything
-random comes from the agent's own generator (``seed``), so training is reproducible.
+random comes from the agent's own generator (``seed``), so training is reproducible. The agent
+counts what it has learned from: ``episodes`` ended, ``steps`` (transitions, i.e. environment
+steps) and ``visits`` per state; all three are saved with it.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -46,19 +51,46 @@ class TabularQAgent:
     seed: int = 0
     table: np.ndarray = field(init=False)
     episodes: int = field(init=False, default=0)
+    steps: int = field(init=False, default=0)
+    visits: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
         if self.n_actions < 2:
-            raise ValueError("n_actions must be at least 2")
-        self.bins = {int(k): sorted(float(x) for x in v) for k, v in self.bins.items()}
+            raise ValueError("n_actions: must be at least 2")
+        self._check_numbers()
+        self.bins = _check_bins(self.bins)
         self._dims = sorted(self.bins)
         self._sizes = [len(self.bins[d]) + 1 for d in self._dims]
         self.table = np.zeros((int(np.prod(self._sizes)), self.n_actions))
+        self.visits = np.zeros(self.table.shape[0], dtype=np.int64)
         self.rng = np.random.default_rng(self.seed)
+
+    def _check_numbers(self) -> None:
+        """``ValueError`` naming the field (``alpha: …``) for a setting out of its range."""
+        ranges: dict[str, tuple[float, float, bool]] = {  # name: (low, high, low included)
+            "alpha": (0.0, 1.0, False),
+            "gamma": (0.0, 1.0, True),
+            "epsilon_start": (0.0, 1.0, True),
+            "epsilon_end": (0.0, 1.0, True),
+            "epsilon_decay_episodes": (0.0, math.inf, False),
+        }
+        for name, (low, high, closed) in ranges.items():
+            raw = getattr(self, name)
+            if isinstance(raw, bool) or not isinstance(raw, Real) or not math.isfinite(raw):
+                raise ValueError(f"{name}: must be a finite number, got {raw!r}")
+            v = float(raw)
+            if not (low <= v if closed else low < v) or v > high:
+                span = f"{'[' if closed else '('}{low:g}, {high:g}]" if high < math.inf else "> 0"
+                raise ValueError(f"{name}: must be in {span}, got {raw!r}")
 
     @property
     def n_states(self) -> int:
         return self.table.shape[0]
+
+    @property
+    def states_visited(self) -> int:
+        """How many states have been visited at least once."""
+        return int(np.count_nonzero(self.visits))
 
     def state(self, obs: np.ndarray) -> np.ndarray:
         """Flat state index of observations (…, obs_dim)."""
@@ -94,6 +126,8 @@ class TabularQAgent:
         a = np.atleast_1d(action).astype(int)
         r = np.atleast_1d(reward)
         bootstrap = np.where(np.atleast_1d(terminated), 0.0, self.table[s2].max(axis=1))
+        np.add.at(self.visits, s, 1)
+        self.steps += int(s.size)
         for i in range(s.size):  # sequential: two envs may share a state
             target = r[i] + self.gamma * bootstrap[i]
             self.table[s[i], a[i]] += self.alpha * (target - self.table[s[i], a[i]])
@@ -105,6 +139,8 @@ class TabularQAgent:
             buf,
             table=self.table,
             episodes=self.episodes,
+            steps=self.steps,
+            visits=self.visits,
             n_actions=self.n_actions,
             bins_dims=np.array(self._dims),
             bins_flat=np.concatenate([self.bins[d] for d in self._dims]),
@@ -141,16 +177,45 @@ class TabularQAgent:
             )
             agent.table = z["table"].copy()
             agent.episodes = int(z["episodes"])
+            if "steps" in z:  # files written before the agent counted them have neither
+                agent.steps = int(z["steps"])
+                agent.visits = z["visits"].astype(np.int64)
             state: dict[str, Any] = json.loads(bytes(z["rng_state"]).decode())
             agent.rng.bit_generator.state = state
         return agent
 
 
+def _check_bins(bins: Any) -> dict[int, list[float]]:
+    """``{observation index: sorted finite bin edges}``; ``ValueError`` naming ``bins``."""
+    if not isinstance(bins, dict):
+        raise ValueError(f"bins: must be a mapping of observation index to bin edges, got {bins!r}")
+    out: dict[int, list[float]] = {}
+    for k, edges in bins.items():
+        try:
+            dim = int(k)
+        except (TypeError, ValueError):
+            raise ValueError(f"bins: {k!r} is not an observation index") from None
+        if dim < 0:
+            raise ValueError(f"bins: {k!r} is not an observation index")
+        if not isinstance(edges, list | tuple) or not all(
+            isinstance(x, Real) and not isinstance(x, bool) and math.isfinite(x) for x in edges
+        ):
+            raise ValueError(f"bins.{dim}: must be a list of finite numbers, got {edges!r}")
+        out[dim] = sorted(float(x) for x in edges)
+    return out
+
+
 def train_tabular(
-    agent: TabularQAgent, env: Any, episodes: int, on_episode: Any = None
+    agent: TabularQAgent,
+    env: Any,
+    episodes: int,
+    on_episode: Any = None,
+    on_step: Callable[[list[float]], None] | None = None,
 ) -> list[float]:
     """Train on a ``TransferAlignmentVecEnv`` until ``episodes`` episodes have ended; returns
-    the return of each finished episode. ``on_episode(n_done)`` is called as they finish."""
+    the return of each finished episode. ``on_episode(n_done)`` is called as they finish;
+    ``on_step(returns)`` after every step of the environments, with the returns of the episodes
+    that ended at that step (often none)."""
     obs = env.reset()
     returns: list[float] = []
     running = np.zeros(env.num_envs)
@@ -165,11 +230,15 @@ def train_tabular(
                 terminated[i] = not info.get("TimeLimit.truncated", False)
         agent.update(obs, action, reward, final, terminated)
         running += reward
+        finished: list[float] = []
         for j in np.flatnonzero(done):
-            returns.append(float(running[j]))
+            finished.append(float(running[j]))
+            returns.append(finished[-1])
             running[j] = 0.0
             agent.episodes += 1
             if on_episode is not None:
                 on_episode(len(returns))
+        if on_step is not None:
+            on_step(finished)
         obs = next_obs
     return returns[:episodes]

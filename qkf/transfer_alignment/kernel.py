@@ -66,6 +66,7 @@ _FASTMATH = {"reassoc", "contract", "arcp"}
 # named tuple costs an atomic incref/decref pair, and at ~100 of them per epoch the split kernel
 # ran 15-40 % slower than the monolithic one.
 _INLINE_NO_NRT = {"cache": True, "fastmath": _FASTMATH, "inline": "always", "_nrt": False}
+_NO_NRT = {"cache": True, "fastmath": _FASTMATH, "_nrt": False}
 
 # Column l of Ω(ω) has one non-zero, ω[_OM_COL[l]], in row _OM_ROW[l].
 _OM_ROW = np.array([0, 1, 2, 0, 0, 1, 1, 2, 2])
@@ -172,7 +173,7 @@ class _Scratch(NamedTuple):
     sinv_rr: np.ndarray  # (3, 3)
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _rodrigues(theta: float) -> tuple[float, float, float]:
     """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.core.so3.rodrigues_coefficients)."""
     t2 = theta * theta
@@ -189,7 +190,7 @@ def _rodrigues(theta: float) -> tuple[float, float, float]:
     return a, b, c
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
     out_w[0, 0] = 0.0
     out_w[0, 1] = -w[2]
@@ -208,7 +209,7 @@ def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
             out_w2[i, j] = v
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _transition(
     wx: np.ndarray, wx2: np.ndarray, rate: float, s: float, r: np.ndarray, g: np.ndarray
 ) -> None:
@@ -229,7 +230,7 @@ def _transition(
             g[i, j] = s * (e + b1 * wx[i, j] + c2 * wx2[i, j])
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray, w: np.ndarray):  # type: ignore[no-untyped-def]
     """A = (I + K(p̂))⁻¹ and ω̂ = A (ω̃ − b̂) into ``a`` and ``w``; False if singular."""
     m00, m11, m22 = 1.0 + p_hat[0], 1.0 + p_hat[1], 1.0 + p_hat[2]
@@ -259,7 +260,7 @@ def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray,
     return True
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _nodes_needed(theta: float, max_nodes: int) -> int:
     """Gauss–Legendre nodes for Q_d at rotation angle θ = |ω̂|Δt (rad) per step.
 
@@ -276,7 +277,7 @@ def _nodes_needed(theta: float, max_nodes: int) -> int:
     return min(n, max_nodes)
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
     """``A Ω(ω)`` (3×9) into ``out``."""
     for l in range(9):
@@ -286,7 +287,7 @@ def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
             out[i, l] = a[i, col] * v
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np.ndarray) -> float:
     """νᵀ S⁻¹ ν restricted to rows/cols lo:lo+3 of S (marginal NIS of one measurement block).
 
@@ -302,7 +303,7 @@ def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np
     return y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(**_NO_NRT)
 def _correlation_correction(
     p: np.ndarray,
     q_hat: np.ndarray,
