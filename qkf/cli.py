@@ -220,8 +220,10 @@ def plot_cmd(
 
     if not folder.is_dir():
         raise _fail(f"{folder}: no such folder")
-    targets = [folder] if (folder / "rms.csv").is_file() else sorted(
-        p.parent for p in folder.glob("*/rms.csv")
+    targets = (
+        [folder]
+        if (folder / "rms.csv").is_file()
+        else sorted(p.parent for p in folder.glob("*/rms.csv"))
     )
     if not targets:
         raise _fail(f"{folder}: no qkf bench results (rms.csv) here or one level below")
@@ -235,9 +237,7 @@ def plot_cmd(
 
 @app.command("study")
 def study_cmd(
-    study: Annotated[
-        str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")
-    ],
+    study: Annotated[str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")],
     out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
         "results/study"
     ),
