@@ -85,7 +85,7 @@ class BatchedEpisodes:
         """Draw episode ``i`` from ``seed``; returns its first observation."""
         d = simulate(self.cfg, seed, [0])
         self.gyro[i], self.ads_q[i], self.ads_rate[i] = d.gyro[0], d.ads_q[0], d.ads_rate[0]
-        self.q_true[i], self.bias[i], self.calib[i] = d.q_true, d.bias[0], d.calib[0]
+        self.q_true[i], self.bias[i], self.calib[i] = d.q_true[0], d.bias[0], d.calib[0]
         self.has_meas[i] = d.has_meas
         one = TransferAlignmentKF(self.params, 1)
         one.initialize(d.ads_q[:, 0])

@@ -168,3 +168,14 @@ def test_a_registered_reward_is_usable_by_name() -> None:
     assert r < 0.0
     with pytest.raises(ValueError, match="unknown reward 'nosuch'"):
         TransferAlignmentEnv(reward="nosuch", overrides=SHORT)
+
+
+def test_randomized_family_as_scenario() -> None:
+    """Episodes of thermal_snap_random differ in their schedule, and a seed repeats one."""
+    env = TransferAlignmentEnv(scenario="thermal_snap_random")
+    rates = []
+    for seed in (1, 2, 1):
+        env.reset(seed=seed)
+        rates.append(np.linalg.norm(env._driver.core.gyro[0], axis=-1))
+    np.testing.assert_array_equal(rates[0], rates[2])
+    assert not np.array_equal(rates[0] > 0.2 * np.pi / 180, rates[1] > 0.2 * np.pi / 180)

@@ -58,11 +58,82 @@ class CalibrationWalk(StrictModel):
 
 
 class CalibrationJump(StrictModel):
-    """A step change of the true calibration at ``t_s``, added to every term of the group."""
+    """A step change of the true calibration at ``t_s``: one value added to every term of the
+    group, or one value per term (6 misalignments in ``p`` order, 3 scale factors)."""
 
     t_s: NonNegativeFloat
-    misalignment_urad: float = 0.0
-    scale_factor_ppm: float = 0.0
+    misalignment_urad: float | tuple[float, float, float, float, float, float] = 0.0
+    scale_factor_ppm: float | tuple[float, float, float] = 0.0
+
+
+class Uniform(StrictModel):
+    """A uniform distribution on ``[low, high]`` (``low == high``: a constant)."""
+
+    low: float
+    high: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Uniform:
+        if self.high < self.low:
+            raise ValueError("high must be at least low")
+        return self
+
+
+class LogUniform(StrictModel):
+    """A log-uniform distribution on ``[low, high]``, both positive."""
+
+    low: PositiveFloat
+    high: PositiveFloat
+
+    @model_validator(mode="after")
+    def _ordered(self) -> LogUniform:
+        if self.high < self.low:
+            raise ValueError("high must be at least low")
+        return self
+
+
+class RandomManeuvers(StrictModel):
+    """The calibration rotation sequence, drawn per trial: one rotation about each body axis,
+    back to back from its start, in random order (``shuffle_axes``), each with its own rate and
+    duration."""
+
+    shuffle_axes: bool = True
+    rate_deg_s: Uniform = Uniform(low=1.0, high=1.0)
+    duration_s: Uniform = Uniform(low=100.0, high=100.0)
+
+
+class RandomJump(StrictModel):
+    """A calibration jump drawn per trial (it replaces ``calibration_jumps``): its time, and per
+    term a magnitude (and a random sign, if ``random_sign``). With ``rotations_after``, a second
+    rotation sequence starts at the jump, drawn as ``random_events.maneuvers`` (without those,
+    an x, y, z sequence at 1 deg/s, 100 s each, after the fixed ``maneuvers``: list only the
+    first sequence there)."""
+
+    t_s: Uniform
+    misalignment_urad: Uniform = Uniform(low=0.0, high=0.0)
+    scale_factor_ppm: Uniform = Uniform(low=0.0, high=0.0)
+    random_sign: bool = True
+    rotations_after: bool = True
+
+
+class RandomDrift(StrictModel):
+    """A thermal transient drawn per trial (it replaces the segments of ``calibration_walk``):
+    the random walk has intensity ``sigma_per_sqrt_s`` (1/√s) over
+    ``[start_s, start_s + duration_s)``, the walk's base intensity elsewhere."""
+
+    start_s: Uniform
+    duration_s: Uniform
+    sigma_per_sqrt_s: LogUniform
+
+
+class RandomEvents(StrictModel):
+    """Events drawn per trial (randomized scenario families, docs/models.md): each part, if
+    given, replaces its fixed counterpart (``maneuvers``; ``calibration_jumps``; a segment of
+    ``calibration_walk``) in every trial, drawn from the trial's own stream."""
+
+    maneuvers: RandomManeuvers | None = None
+    jump: RandomJump | None = None
+    drift: RandomDrift | None = None
 
 
 class GyroNoise(StrictModel):
@@ -116,6 +187,7 @@ class Scenario(StrictModel):
     calibration_walk: CalibrationWalk = CalibrationWalk()
     calibration_jumps: list[CalibrationJump] = Field(default_factory=list)
     ads: Ads = Ads()
+    random_events: RandomEvents | None = None
 
     @model_validator(mode="after")
     def _fits(self) -> Scenario:

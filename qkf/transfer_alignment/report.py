@@ -154,8 +154,9 @@ def paired_rows(res: BenchResult) -> list[list[object]]:
 
 def _recovery(res: BenchResult) -> dict[str, dict[str, float]]:
     jumps = res.config.scenario.calibration_jumps
-    if not jumps:
-        return {}
+    events = res.config.scenario.random_events
+    if not jumps or (events is not None and events.jump is not None):
+        return {}  # no jump, or one at a different time in every trial
     jump = min(j.t_s for j in jumps)
     return {
         m.name: recovery_times(m.rms, res.t, jump, res.config.run.settled_s) for m in res.methods
@@ -211,6 +212,12 @@ def summary_markdown(res: BenchResult) -> str:
         for name, rec in recovery.items():
             cells = ["–" if np.isnan(v) else f"{v:g}" for v in rec.values()]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    if cfg.scenario.random_events is not None:
+        lines += [
+            "",
+            "Events are drawn per trial (a randomized family): the CRLB row is the bound along "
+            "the nominal schedule of the config, a reference, not each trial's bound.",
+        ]
     notes = [f"- {m.name}: {note}" for m in res.methods for note in m.notes.values()]
     if notes:
         lines += ["", *notes]

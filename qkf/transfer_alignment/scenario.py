@@ -24,12 +24,21 @@ from scipy.spatial.transform import Rotation
 
 from qkf.core import units
 from qkf.core.quat import cumulative_rotation
-from qkf.transfer_alignment.config import Config, Scenario
+from qkf.transfer_alignment.config import (
+    CalibrationJump,
+    Config,
+    Maneuver,
+    RandomManeuvers,
+    Scenario,
+    WalkSegment,
+)
 from qkf.transfer_alignment.model import calibration_matrix
 from qkf.transfer_alignment.params import TruthParams, n_epochs
 
 _AXES = {"x": 0, "y": 1, "z": 2}
-_STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate")
+# a new stream goes at the end: SeedSequence children are fixed by their index, so adding one
+# leaves the draws of the others unchanged
+_STREAMS = ("truth", "bias_walk", "calib_walk", "gyro", "ads_attitude", "ads_rate", "events")
 
 
 @dataclass(frozen=True)
@@ -41,8 +50,8 @@ class ScenarioData:
 
     t: np.ndarray  # (N,) s
     dt: float
-    omega_true: np.ndarray  # (N, 3) rad/s, the same for every trial
-    q_true: np.ndarray  # (N, 4), the same for every trial
+    omega_true: np.ndarray  # (B, N, 3) rad/s (a broadcast view when all trials share it)
+    q_true: np.ndarray  # (B, N, 4) (likewise)
     bias: np.ndarray  # (B, N, 3) rad/s
     calib: np.ndarray  # (B, N, 9)
     gyro: np.ndarray  # (B, N, 3) rad/s
@@ -105,9 +114,62 @@ def calibration_jumps(sc: Scenario) -> np.ndarray:
     jumps = np.zeros((t.size, 9))
     for j in sc.calibration_jumps:
         after = t >= j.t_s - 1e-9
-        jumps[after, 0:3] += j.scale_factor_ppm * units.PPM
-        jumps[after, 3:9] += j.misalignment_urad * units.URAD
+        jumps[after, 0:3] += np.asarray(j.scale_factor_ppm) * units.PPM
+        jumps[after, 3:9] += np.asarray(j.misalignment_urad) * units.URAD
     return jumps
+
+
+def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> list[Maneuver]:
+    axes = ["x", "y", "z"]
+    if spec.shuffle_axes:
+        axes = [axes[i] for i in rng.permutation(3)]
+    out = []
+    for axis in axes:
+        rate = rng.uniform(spec.rate_deg_s.low, spec.rate_deg_s.high)
+        length = rng.uniform(spec.duration_s.low, spec.duration_s.high)
+        out.append(Maneuver(start_s=start, duration_s=length, axis=axis, rate_deg_s=rate))
+        start += length
+    return out
+
+
+def draw_events(sc: Scenario, rng: np.random.Generator) -> Scenario:
+    """The scenario of one trial of a randomized family: ``sc`` with the events of
+    ``sc.random_events`` drawn from ``rng`` (always in the same order: manoeuvres, jump, drift,
+    so a trial's draws do not depend on which parts are configured after them)."""
+    ev = sc.random_events
+    if ev is None:
+        return sc
+    update: dict[str, object] = {"random_events": None}
+    maneuvers = list(sc.maneuvers)
+    if ev.maneuvers is not None:
+        maneuvers = _sequence(0.0, ev.maneuvers, rng)
+    if ev.jump is not None:
+        j = ev.jump
+        t_jump = rng.uniform(j.t_s.low, j.t_s.high)
+        sign = rng.choice([-1.0, 1.0], size=9) if j.random_sign else np.ones(9)
+        sf = rng.uniform(j.scale_factor_ppm.low, j.scale_factor_ppm.high, 3) * sign[:3]
+        ma = rng.uniform(j.misalignment_urad.low, j.misalignment_urad.high, 6) * sign[3:]
+        update["calibration_jumps"] = [
+            CalibrationJump(
+                t_s=t_jump,
+                scale_factor_ppm=tuple(float(v) for v in sf),  # type: ignore[arg-type]
+                misalignment_urad=tuple(float(v) for v in ma),  # type: ignore[arg-type]
+            )
+        ]
+        if j.rotations_after:
+            again = ev.maneuvers or RandomManeuvers(shuffle_axes=False)
+            maneuvers += _sequence(t_jump, again, rng)
+    if ev.drift is not None:
+        d = ev.drift
+        start = rng.uniform(d.start_s.low, d.start_s.high)
+        length = rng.uniform(d.duration_s.low, d.duration_s.high)
+        log_sigma = rng.uniform(np.log(d.sigma_per_sqrt_s.low), np.log(d.sigma_per_sqrt_s.high))
+        segment = WalkSegment(
+            start_s=start, end_s=start + length, sigma_per_sqrt_s=float(np.exp(log_sigma))
+        )
+        update["calibration_walk"] = sc.calibration_walk.model_copy(update={"segments": [segment]})
+    update["maneuvers"] = maneuvers
+    return sc.model_copy(update=update)
 
 
 def true_attitude(omega: np.ndarray, dt: float) -> np.ndarray:
@@ -132,10 +194,14 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         raise ValueError("trials must be a positive count or a non-empty list of indices")
     n, dt, b = tp.n_epochs, tp.dt, ids.size
     t = np.arange(n) * dt
+    random = sc.random_events is not None
     omega = true_rates(sc)
     q_true = true_attitude(omega, dt)
     walk_sigma = calibration_walk_sigma(sc)
     jumps = calibration_jumps(sc)
+    if random:  # per-trial schedules
+        omega_b, q_b = np.empty((b, n, 3)), np.empty((b, n, 4))
+        walk_b, jumps_b = np.empty((b, n)), np.empty((b, n, 9))
 
     bias = np.empty((b, n, 3))
     calib = np.empty((b, n, 9))
@@ -144,6 +210,13 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     nu_r = np.empty((b, n, 3))
     for row, trial in enumerate(ids):
         g = trial_streams(seed, int(trial))
+        if random:
+            sc_trial = draw_events(sc, g["events"])
+            omega_b[row] = true_rates(sc_trial)
+            q_b[row] = true_attitude(omega_b[row], dt)
+            walk_b[row] = calibration_walk_sigma(sc_trial)
+            jumps_b[row] = calibration_jumps(sc_trial)
+            walk_sigma = walk_b[row]
         if tp.randomize_truth:
             b0 = g["truth"].normal(0.0, tp.prior_sigma_b, 3)
             p0 = g["truth"].normal(0.0, tp.prior_sigma_p, 9)
@@ -160,24 +233,29 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         eta_v[row] = g["gyro"].normal(0.0, tp.sigma_v / np.sqrt(dt), (n, 3))
         nu_a[row] = g["ads_attitude"].normal(0.0, tp.sigma_a, (n, 3))
         nu_r[row] = g["ads_rate"].normal(0.0, tp.sigma_r, (n, 3))
-    calib += jumps[None]
-
-    kw = np.einsum("bnij,nj->bni", calibration_matrix(calib), omega)
-    gyro = omega[None] + kw + bias + eta_v
+    if random:
+        calib += jumps_b
+        kw = np.einsum("bnij,bnj->bni", calibration_matrix(calib), omega_b)
+        omega_all, q_all = omega_b, q_b
+    else:  # one schedule for all trials (kept on this path: same arithmetic as ever)
+        calib += jumps[None]
+        kw = np.einsum("bnij,nj->bni", calibration_matrix(calib), omega)
+        omega_all = np.broadcast_to(omega, (b, n, 3))
+        q_all = np.broadcast_to(q_true, (b, n, 4))
+    gyro = omega_all + kw + bias + eta_v
     ads_q = (
-        Rotation.from_quat(np.broadcast_to(q_true, (b, n, 4)).reshape(-1, 4))
-        * Rotation.from_rotvec(nu_a.reshape(-1, 3))
+        Rotation.from_quat(q_all.reshape(-1, 4)) * Rotation.from_rotvec(nu_a.reshape(-1, 3))
     ).as_quat()
     return ScenarioData(
         t=t,
         dt=dt,
-        omega_true=omega,
-        q_true=q_true,
+        omega_true=omega_all,
+        q_true=q_all,
         bias=bias,
         calib=calib,
         gyro=gyro,
         ads_q=ads_q.reshape(b, n, 4),
-        ads_rate=omega[None] + nu_r,
+        ads_rate=omega_all + nu_r,
         has_meas=measurement_mask(sc),
         trial_ids=ids,
         seed=seed,
