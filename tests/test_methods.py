@@ -198,3 +198,40 @@ def test_sage_husa_learns_the_true_attitude_noise(true_arcsec: float) -> None:
     out = run_sage_husa(cfg, simulate(cfg, 4, 8))
     learned = out.logs["sigma_a"][:, -300:].mean() / units.ARCSEC
     assert learned == pytest.approx(true_arcsec, rel=0.15)
+
+
+def test_qkf_switch_options_by_hand() -> None:
+    from qkf.transfer_alignment.methods.qlearning import greedy_switch, normalize_reward
+
+    table = np.zeros((3, 3, 3))
+    table[0, 1] = [0.2, 0.1, 0.3]  # trial 0 in state 1: best 2 (0.3), Q(s, s) = 0.1
+    table[1, 0] = [0.05, 0.0, 0.04]  # trial 1 in state 0: best is staying (0.05)
+    table[2, 2] = [0.0, 0.01, 0.0]  # trial 2 in state 2: best 1 (0.01)
+    s = np.array([1, 0, 2])
+    np.testing.assert_array_equal(greedy_switch(table, s), [2, 0, 1])  # the paper's rule
+    np.testing.assert_array_equal(greedy_switch(table, s, threshold=0.05), [2, 0, 2])
+    np.testing.assert_array_equal(greedy_switch(table, s, hysteresis=0.15), [2, 0, 2])
+    np.testing.assert_array_equal(greedy_switch(table, s, hysteresis=0.25), [1, 0, 2])
+    sq = np.zeros(2)
+    r1 = normalize_reward(np.array([2.0, 0.0]), sq, 1)  # RMS of [2] is 2
+    np.testing.assert_allclose(r1, [1.0, 0.0])
+    r2 = normalize_reward(np.array([-4.0, 3.0]), sq, 2)  # RMS of [2, -4] = √10; of [0, 3] = √4.5
+    np.testing.assert_allclose(r2, [-4.0 / np.sqrt(10.0), 3.0 / np.sqrt(4.5)])
+
+
+def test_qkf_hysteresis_switches_less() -> None:
+    cfg = cfg_with("scenario.duration_s=600")
+    data = simulate(cfg, 1, 3)
+    plain = METHODS["qkf"](cfg, data)
+    held = METHODS["qkf"](
+        cfg_with(
+            "scenario.duration_s=600",
+            "adaptive.qkf.reward_normalization=running_rms",
+            "adaptive.qkf.hysteresis=0.5",
+        ),
+        data,
+    )
+    switches = [
+        int(np.count_nonzero(np.diff(o.logs["kappa_index"], axis=1))) for o in (plain, held)
+    ]
+    assert switches[1] < switches[0]

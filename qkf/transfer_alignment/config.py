@@ -271,6 +271,10 @@ class QkfConfig(StrictModel):
     epsilon_decay_s: PositiveFloat = 900.0
     alpha: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
     gamma: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.9
+    # departures from the paper's rule, off by default (docs/methods.md, "QKF options"):
+    switch_threshold: NonNegativeFloat = 0.0  # switch only if max Q(s, ·) exceeds it
+    hysteresis: NonNegativeFloat = 0.0  # … and exceeds Q(s, s) by more than this
+    reward_normalization: Literal["none", "running_rms"] = "none"
 
 
 class MmaeConfig(StrictModel):

@@ -11,6 +11,12 @@ Every decision period ``T_c``:
 5. ``Q(s, a) += α (r + γ max_a' Q(a, a') − Q(s, a))``;
 6. the main filter switches to ``argmax_a Q(s, a)`` if that value is positive, else stays.
 
+Options (departures from the paper's rule, off by default; docs/methods.md): a switch threshold
+(``switch_threshold``: switch only if ``max_a Q(s, a)`` exceeds it), hysteresis (``hysteresis``:
+and only if it exceeds ``Q(s, s)`` by more than that), and reward normalisation
+(``reward_normalization: running_rms``: each reward divided by the running RMS of the trial's
+rewards so far, so that α and the thresholds act on a unit scale whatever the scenario).
+
 ε decays as ``ε_end + (ε_start − ε_end) exp(−t / τ)``. Each trial draws its ε-greedy choices
 from its own generator (seeded by the run's seed and the trial index), so trial ``i`` is
 reproducible on its own.
@@ -46,12 +52,27 @@ def q_update(
     table[rows, s, a] += alpha * (target - table[rows, s, a])
 
 
-def greedy_switch(table: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Next state: ``argmax_a Q(s, a)`` where that value is positive, else ``s``."""
+def greedy_switch(
+    table: np.ndarray, s: np.ndarray, threshold: float = 0.0, hysteresis: float = 0.0
+) -> np.ndarray:
+    """Next state: ``a* = argmax_a Q(s, a)`` where ``Q(s, a*) > threshold`` (the paper's rule:
+    threshold 0) and, with ``hysteresis > 0``, ``Q(s, a*) − Q(s, s) > hysteresis``; else ``s``."""
     rows = np.arange(table.shape[0])
     q_row = table[rows, s]
     best = q_row.argmax(axis=1)
-    return np.where(q_row[rows, best] > 0.0, best, s)
+    q_best = q_row[rows, best]
+    switch = q_best > threshold
+    if hysteresis > 0.0:
+        switch &= q_best - q_row[rows, s] > hysteresis
+    return np.where(switch, best, s)
+
+
+def normalize_reward(r: np.ndarray, sum_sq: np.ndarray, count: int) -> np.ndarray:
+    """``r / RMS(r_1 … r_j)``: the reward in units of its own running RMS (per trial, the
+    current reward included; 0 stays 0). ``sum_sq`` (B,) is updated in place."""
+    sum_sq += r * r
+    rms = np.sqrt(sum_sq / count)
+    return np.where(rms > 0.0, r / np.where(rms > 0.0, rms, 1.0), 0.0)
 
 
 def epsilon_at(cfg: Config, t_s: float) -> float:
@@ -76,6 +97,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     kappa_index = np.empty((b, len(starts)), dtype=np.int64)
     rewards = np.empty((b, len(starts)))
     actions = np.empty((b, len(starts)), dtype=np.int64)
+    reward_sq = np.zeros(b)
     for j, k0 in enumerate(starts):
         k1 = min(n, k0 + period)
         eps = epsilon_at(cfg, k0 * cfg.scenario.dt_s)
@@ -96,9 +118,11 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
         r = (rec_e.loglik.sum(axis=1) - rec_m.loglik.sum(axis=1)) / t_c
         # a diverging explorative filter earns a prohibitive penalty (its ℓ is −inf)
         r = np.where(np.isfinite(r), r, DIVERGENCE_PENALTY)
+        if qc.reward_normalization == "running_rms":
+            r = normalize_reward(r, reward_sq, j + 1)
         rewards[:, j] = r
         q_update(table, s, a, r, qc.alpha, qc.gamma)
-        s = greedy_switch(table, s)
+        s = greedy_switch(table, s, qc.switch_threshold, qc.hysteresis)
     return MethodOutput(
         est=est,
         diverged=main.diverged.copy(),
