@@ -248,10 +248,19 @@ def study_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png."""
+    from qkf.core import presets
+    from qkf.core.config import read_yaml_mapping
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.methods import MethodOutputError
     from qkf.transfer_alignment.study import CaseRun, load_study, prepare_output, run_study
 
+    try:
+        kind = read_yaml_mapping(presets.resolve(study, "studies"), "study").get("kind")
+    except ConfigError as exc:
+        raise _fail(str(exc)) from None
+    if kind == "claims":
+        _claims(study, out_dir, quiet)
+        return
     try:
         load_study(study)
         prepare_output(out_dir, resume, overwrite)
@@ -361,6 +370,22 @@ def evaluate_cmd(
     res = run_benchmark(cfg, [f"policy:{model}"], trials=trials, seed=seed, progress=not quiet)
     write_bench(res, out_dir)
     out.print((out_dir / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+
+
+def _claims(study: str, out_dir: Path, quiet: bool) -> None:
+    from qkf.core.io import OutputError, check_output_dir
+    from qkf.transfer_alignment.claims import load_claims, run_claims
+    from qkf.transfer_alignment.methods import MethodOutputError
+
+    try:
+        load_claims(study)
+        check_output_dir(out_dir)
+        run_claims(study, out_dir, progress=not quiet)
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise _fail(str(exc)) from None
+    text = (out_dir / "claims.md").read_text()
+    out.print(text, soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {out_dir}/ (claims.csv, claims.md, one benchmark folder per config)")
 
 
 def main() -> None:  # pragma: no cover - entry point

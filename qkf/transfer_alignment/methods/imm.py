@@ -1,0 +1,339 @@
+r"""IMM: interacting multiple models over the κ bank (docs/methods.md).
+
+The models are the κ values of the action set; model ``j`` is the filter with
+``q_p = κ_j q_p0``. The model index follows a Markov chain with switching matrix
+``Π_ij = P(model j at k | model i at k − 1)``: ``Π_ii = p_stay`` and the rest of each row
+spread uniformly over the other models (``switching: uniform``, the default) or split between
+the neighbours ``i ± 1`` in the ordered action set (``switching: neighbours``). One cycle, for
+every trial::
+
+    c̄_j     = Σ_i Π_ij μ_i                                        predicted model probability
+    μ_i|j   = Π_ij μ_i / c̄_j                                      mixing probabilities
+    x̂0_j    = Σ_i μ_i|j x̂_i                                       mixed mean
+    P0_j    = Σ_i μ_i|j (P_i + (x̂_i − x̂0_j)(x̂_i − x̂0_j)ᵀ)          mixed covariance
+    (filter every model j from (x̂0_j, P0_j) with its own κ_j)
+    Λ_j     = exp(ℓ_j),   ℓ_j = −½ (νᵀ S⁻¹ ν + log det S)_j          model likelihood
+    μ_j     ∝ Λ_j c̄_j                                             model probability
+
+Unlike the MMAE bank, whose weights can lock in, the transition mass ``1 − p_stay`` feeds every
+model each cycle and the mixing restarts every model from the common mixture, so all models
+stay alive without a weight floor. With ``Π = I`` the probability recursion is the MMAE one
+without floor (a test checks it).
+
+**On the error-state filter.** The compiled filter runs, for one epoch, the update at ``k`` and
+the propagation to ``k + 1`` in one call, so the bank is mixed on its *predicted* states, at the
+start of the next epoch's call. The state of model ``i`` is the estimate ``(Ĉ_i, b̂_i, p̂_i)``
+and the covariance ``P_i`` of its error state. The mixing works on the 15-vector
+``x̂_i = (Log(Ĉ_refᵀ Ĉ_i), b̂_i, p̂_i)``, where the attitude is a rotation vector about a
+reference attitude ``Ĉ_ref`` (the most probable model's, as in the MMAE ``combine``); the mixed
+attitude is ``Ĉ0_j = Ĉ_ref Exp(δθ0_j)`` and the attitude spread enters ``P0_j`` through the
+rotation-vector differences (small-angle: the models differ by arcseconds, and the change of the
+attitude-error frame between models, ``I + O(δθ)``, is neglected as in the filter's reset).
+
+Because mixing happens after the propagation ``k → k + 1``, every predicted ``P_i`` already
+holds its own calibration process noise ``κ_i q_p0 U_i``, where ``U_i = Q_d(q_p = 1 /s,
+σ_v = σ_u = 0)`` is the part of ``Q_d`` per unit calibration density at model ``i``'s ``ω̂`` and
+``A`` (``Q_d`` is linear in ``q_p``). Standard IMM mixes posteriors and then predicts with
+``Q_j``; the equivalent on predicted states swaps the calibration noise::
+
+    P̃_i  = P_i − κ_i q_p0 U_i                                      (predicted, without q_p)
+    P0_j = Σ_i μ_i|j (P̃_i + d_ij d_ijᵀ) + κ_j q_p0 U_j,   d_ij = x̂_i − x̂0_j
+
+``P̃_i`` is the prediction with zero calibration noise (positive semi-definite); the rest of
+``P_i`` (the gyro noise terms and the correlated rate-noise terms) does not depend on κ and is
+mixed as it is. Spreads are taken between predicted means instead of ``Φ`` times the spreads
+of posterior means: equal to first order (the models' ``Φ`` differ only through their
+``ω̂``, ``A``).
+
+**Mixing interval.** ``mix_every`` = M ≥ 1 epochs: between mixings the models run as
+independent filters (``Π = I``: ``c̄ = μ``) in one compiled call, and ``p_stay`` is the
+probability of staying over one mixing interval. Default M = 1 (every epoch).
+
+**Output.** ``μ``-weighted combination of the models' a-posteriori estimates (MMAE's
+``combine``). κ reported per epoch: ``exp(Σ_j μ_j log κ_j)`` (as MMAE). The combined
+covariance ``Σ_j μ_j (P_j + spread)`` carries the *arithmetic* mean ``Σ_j μ_j κ_j`` of the
+calibration noise; it is logged as ``kappa_arith``.
+
+**Divergence.** A model with a non-finite likelihood gets ``μ = 0``; the next mixing gives it a
+fresh mixed initial condition and it runs again. A trial counts as diverged once all of its
+models have diverged at the same epoch; it is frozen from then on.
+
+Units SI throughout: rad, rad/s, s; ``q_p`` in 1/s; ``U`` in s (per 1/s of density).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.mmae import combine
+from qkf.transfer_alignment.model import calibration_matrix, discretize
+from qkf.transfer_alignment.params import FilterParams
+from qkf.transfer_alignment.scenario import ScenarioData
+
+BLOCK = 200  # epochs per combination of the bank's estimates (bounds memory)
+
+Switching = Literal["uniform", "neighbours"]
+
+
+@dataclass(frozen=True)
+class ImmParams:
+    """IMM settings (``adaptive.imm`` once the config has that section, else these defaults)."""
+
+    p_stay: float = 0.95  # Π_ii, probability of keeping the model over one mixing interval
+    switching: Switching = "uniform"  # where the off-diagonal mass 1 − p_stay goes
+    mix_every: int = 1  # epochs per mixing interval M
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.p_stay < 1.0:
+            raise ValueError(f"p_stay must be in (0, 1), got {self.p_stay}")
+        if self.switching not in ("uniform", "neighbours"):
+            raise ValueError(f"switching must be 'uniform' or 'neighbours', got {self.switching!r}")
+        if self.mix_every < 1:
+            raise ValueError(f"mix_every must be at least 1, got {self.mix_every}")
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> ImmParams:
+        sec = getattr(cfg.adaptive, "imm", None)
+        if sec is None:
+            return cls()
+        d = cls()
+        return cls(
+            p_stay=float(getattr(sec, "p_stay", d.p_stay)),
+            switching=getattr(sec, "switching", d.switching),
+            mix_every=int(getattr(sec, "mix_every", d.mix_every)),
+        )
+
+
+# ---- generic IMM algebra (numpy, batched over leading axes) -----------------------------------
+
+
+def transition_matrix(n_models: int, p_stay: float, switching: Switching = "uniform") -> np.ndarray:
+    """Markov switching matrix ``Π`` (A, A), rows summing to 1: ``Π_ij = P(j at k | i at k−1)``.
+
+    ``uniform``: ``Π_ii = p_stay``, ``Π_ij = (1 − p_stay)/(A − 1)`` for ``j ≠ i``.
+    ``neighbours``: ``1 − p_stay`` split equally between ``i − 1`` and ``i + 1`` (all of it to
+    the one neighbour at either end of the ordered action set).
+    """
+    if n_models < 2:
+        raise ValueError("an IMM needs at least two models")
+    if not 0.0 < p_stay <= 1.0:
+        raise ValueError(f"p_stay must be in (0, 1], got {p_stay}")
+    off = 1.0 - p_stay
+    if switching == "uniform":
+        pi = np.full((n_models, n_models), off / (n_models - 1))
+    elif switching == "neighbours":
+        pi = np.zeros((n_models, n_models))
+        for i in range(n_models):
+            nb = [j for j in (i - 1, i + 1) if 0 <= j < n_models]
+            pi[i, nb] = off / len(nb)
+    else:
+        raise ValueError(f"unknown switching {switching!r}")
+    np.fill_diagonal(pi, p_stay)
+    return pi
+
+
+def mixing_probabilities(mu: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``c̄`` (…, A) and the mixing probabilities ``μ_i|j`` (…, A_i, A_j) from ``μ`` (…, A).
+
+    ``c̄_j = Σ_i Π_ij μ_i``, ``μ_i|j = Π_ij μ_i / c̄_j``. A model with ``c̄_j = 0`` (possible only
+    with zeros in ``Π``) keeps its own state: ``μ_i|j = δ_ij``.
+    """
+    joint = trans * mu[..., :, None]  # Π_ij μ_i
+    c_bar = joint.sum(axis=-2)  # c̄_j = Σ_i Π_ij μ_i
+    safe = np.where(c_bar > 0.0, c_bar, 1.0)
+    mix = np.where(c_bar[..., None, :] > 0.0, joint / safe[..., None, :], np.eye(trans.shape[-1]))
+    return c_bar, mix
+
+
+def mix_moments(x: np.ndarray, cov: np.ndarray, mix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mixed means (…, A, n) and covariances (…, A, n, n) of A Gaussians ``x`` (…, A, n),
+    ``cov`` (…, A, n, n) with mixing probabilities ``mix`` (…, A_i, A_j).
+
+    ``x̂0_j = Σ_i μ_i|j x̂_i``, ``P0_j = Σ_i μ_i|j (P_i + d_ij d_ijᵀ)``, ``d_ij = x̂_i − x̂0_j``.
+    Evaluated as ``Σ_i μ_i|j (P_i + y_i y_iᵀ) − y0_j y0_jᵀ`` (the same, since ``Σ_i μ_i|j = 1``)
+    with ``y = x − x̄`` centred on the models' plain mean, which keeps the cancellation at the
+    size of the spread; A outer products instead of A².
+    """
+    n = x.shape[-1]
+    mt = np.swapaxes(mix, -1, -2)  # (…, A_j, A_i)
+    centre = x.mean(axis=-2, keepdims=True)
+    y = x - centre
+    y0 = mt @ y  # y0_j = Σ_i μ_i|j y_i
+    second = cov + y[..., :, None] * y[..., None, :]  # P_i + y_i y_iᵀ
+    p0 = (mt @ second.reshape(*second.shape[:-2], n * n)).reshape(*y0.shape, n)
+    p0 -= y0[..., :, None] * y0[..., None, :]  # − y0_j y0_jᵀ
+    return y0 + centre, p0
+
+
+def update_model_probabilities(c_bar: np.ndarray, loglik: np.ndarray) -> np.ndarray:
+    """``μ_j ∝ Λ_j c̄_j``, ``Λ_j = exp(ℓ_j)``, over the last axis, in the log domain.
+
+    A model with a non-finite ``ℓ`` (diverged) gets ``μ = 0``; a row with no live model, all
+    zeros.
+    """
+    alive = np.isfinite(loglik) & (c_bar > 0.0)
+    with np.errstate(divide="ignore"):
+        lw = np.where(
+            alive, np.log(np.where(alive, c_bar, 1.0)) + np.where(alive, loglik, 0.0), -np.inf
+        )
+    top = lw.max(axis=-1, keepdims=True)
+    w = np.exp(lw - np.where(np.isfinite(top), top, 0.0))
+    tot = w.sum(axis=-1, keepdims=True)
+    return np.where(tot > 0.0, w / np.where(tot > 0.0, tot, 1.0), 0.0)
+
+
+# ---- the transfer-alignment bank ----------------------------------------------------------------
+
+
+def unit_calibration_noise(params: FilterParams, rate: np.ndarray, p_hat: np.ndarray) -> np.ndarray:
+    """``U = ∂Q_d/∂q_p`` (…, 15, 15) in s: ``Q_d`` with ``q_p = 1 /s`` and no gyro noise, at the
+    rate ``rate`` (…, 3, rad/s) the propagation used and ``A = (I + K(p̂))⁻¹``."""
+    a = np.linalg.inv(np.eye(3) + calibration_matrix(p_hat))
+    _, u = discretize(rate, a, params.dt, 0.0, 0.0, 1.0, nodes=params.quadrature_nodes)
+    return u
+
+
+def mix_bank(
+    kf: TransferAlignmentKF,
+    mu: np.ndarray,
+    trans: np.ndarray,
+    kappas: np.ndarray,
+    unit_q: np.ndarray,
+    live: np.ndarray,
+) -> np.ndarray:
+    """Mix the bank (rows ``trial * A + model``) in place on its predicted states; returns ``c̄``.
+
+    ``mu`` (B, A) model probabilities; ``unit_q`` (B, 15, 15) the ``U`` of the last propagation,
+    per trial (its models' ``ω̂`` and ``A`` differ by parts in 10⁶); ``live`` (B,) the trials
+    that still have a live model (the others are left as they are).
+    """
+    b, n_act = mu.shape
+    qp0 = kf.params.qp0
+    dead = ~np.isfinite(kf.q_hat).all(axis=1) | kf.diverged
+    mu = np.where(dead.reshape(b, n_act), 0.0, mu)  # a model that diverged has μ = 0
+    tot = mu.sum(axis=1, keepdims=True)
+    live = live & (tot[:, 0] > 0.0)
+    mu = mu / np.where(tot > 0.0, tot, 1.0)
+    c_bar, mix = mixing_probabilities(mu, trans)
+    # reference attitude: the most probable model of each trial
+    q = np.where(dead[:, None], np.array([0.0, 0.0, 0.0, 1.0]), kf.q_hat).reshape(b, n_act, 4)
+    best = mu.argmax(axis=1)
+    q_ref = q[np.arange(b), best]  # (B, 4)
+    ref = Rotation.from_quat(q_ref)
+    rel = (
+        Rotation.from_quat(np.repeat(q_ref, n_act, axis=0)).inv()
+        * Rotation.from_quat(q.reshape(-1, 4))
+    ).as_rotvec()  # δθ_i = Log(Ĉ_refᵀ Ĉ_i)
+    x = np.concatenate([rel, kf.b_hat, kf.p_hat], axis=1)
+    kq = (kappas * qp0)[None, :, None, None]  # κ_j q_p0, 1/s
+    u = unit_q[:, None]  # (B, 1, 15, 15)
+    cov = (kf.P.reshape(b, n_act, 15, 15) - kq * u).reshape(-1, 15, 15)  # P̃_i = P_i − κ_i q_p0 U
+    x[dead] = 0.0  # μ_i = 0 for these: neutral values keep NaN out of the sums
+    cov[dead] = 0.0
+    x0, p0 = mix_moments(x.reshape(b, n_act, 15), cov.reshape(b, n_act, 15, 15), mix)
+    p0 += kq * u  # + κ_j q_p0 U_j
+    p0 = 0.5 * (p0 + np.swapaxes(p0, -1, -2))
+    q0 = (
+        ref[np.repeat(np.arange(b), n_act)] * Rotation.from_rotvec(x0[..., 0:3].reshape(-1, 3))
+    ).as_quat()  # Ĉ0_j = Ĉ_ref Exp(δθ0_j)
+    rows = np.repeat(live, n_act)
+    kf.q_hat[rows] = q0[rows]
+    kf.b_hat[rows] = x0[..., 3:6].reshape(-1, 3)[rows]
+    kf.p_hat[rows] = x0[..., 6:15].reshape(-1, 9)[rows]
+    p_all = kf.P
+    p_all[rows] = p0.reshape(-1, 15, 15)[rows]
+    kf.P = p_all
+    kf.diverged[rows] = False  # every model restarts from the mixture
+    return np.where(live[:, None], c_bar, mu)
+
+
+def run_imm(cfg: Config, data: ScenarioData) -> MethodOutput:
+    """The IMM over the κ action set, all trials at once (bank of A × B filters).
+
+    Logs the model probabilities per epoch (``probabilities``, (B, N, A)) and the arithmetic
+    mean ``Σ μ_j κ_j`` (``kappa_arith``, (B, N))."""
+    prm = ImmParams.from_config(cfg)
+    kappas = action_values(cfg)
+    n_act = kappas.size
+    b, n = data.n_trials, data.n_epochs
+    trans = transition_matrix(n_act, prm.p_stay, prm.switching)
+    bank = new_filter(cfg, data, n_copies=n_act)  # row = trial * A + model
+    kappa_rows = np.tile(kappas, b)
+    mu = np.full((b, n_act), 1.0 / n_act)
+    live = np.ones(b, dtype=bool)
+    alive = np.ones((b, n), dtype=bool)  # trial still has a live model at the epoch
+    est = np.full((b, n, 16), np.nan)
+    probs = np.empty((b, n, n_act))
+    buf_est = np.empty((b, n_act, BLOCK, 16))
+    buf_w = np.empty((b, n_act, BLOCK))
+    buf_start = 0
+    unit_q: np.ndarray | None = None
+    m = prm.mix_every
+    for k0 in range(0, n, m):
+        k1 = min(n, k0 + m)
+        c_bar = mu
+        if unit_q is not None and live.any():
+            c_bar = mix_bank(bank, mu, trans, kappas, unit_q, live)
+        sl = slice(k0, k1)
+        rec = bank.step(
+            np.repeat(data.gyro[:, sl], n_act, axis=0),
+            np.repeat(data.ads_q[:, sl], n_act, axis=0),
+            np.repeat(data.ads_rate[:, sl], n_act, axis=0),
+            data.has_meas[sl],
+            kappa_rows,
+        )
+        ll = rec.loglik.reshape(b, n_act, k1 - k0)
+        for k in range(k1 - k0):
+            new = update_model_probabilities(c_bar, ll[:, :, k])  # μ_j ∝ Λ_j c̄_j
+            live &= new.sum(axis=1) > 0.0  # all models dead at once: the trial has diverged
+            mu = np.where(live[:, None], new, mu)
+            c_bar = mu  # no transition inside a mixing interval
+            probs[:, k0 + k] = mu
+            alive[:, k0 + k] = live
+        # buffer the bank's posterior estimates; combine every BLOCK epochs
+        bank_est = rec.est.reshape(b, n_act, k1 - k0, 16)
+        for k in range(k1 - k0):
+            j = k0 + k - buf_start
+            buf_est[:, :, j] = bank_est[:, :, k]
+            buf_w[:, :, j] = probs[:, k0 + k, :]
+            if j + 1 == BLOCK or k0 + k + 1 == n:
+                _flush(est, buf_est[:, :, : j + 1], buf_w[:, :, : j + 1], buf_start)
+                buf_start = k0 + k + 1
+        # U of the last propagation, at the most probable model's ω̂ and p̂
+        finite = np.isfinite(rec.rate[:, -1]).all(axis=1) & np.isfinite(bank.p_hat).all(axis=1)
+        best = np.arange(b) * n_act + np.where(finite.reshape(b, n_act), mu, -1.0).argmax(axis=1)
+        rate, p_hat, ok = rec.rate[best, -1], bank.p_hat[best], finite[best]
+        unit_q = unit_calibration_noise(
+            bank.params, np.where(ok[:, None], rate, 0.0), np.where(ok[:, None], p_hat, 0.0)
+        )
+    diverged = ~live
+    log_k = np.log(kappas)
+    kappa = np.exp(probs @ log_k)  # probability-weighted geometric mean of the bank's κ
+    kappa_arith = probs @ kappas
+    est[~alive] = np.nan
+    notes = {
+        "imm": f"p_stay = {prm.p_stay:g}, {prm.switching} switching, mixing every {m} epoch(s)"
+    }
+    return MethodOutput(
+        est=est,
+        diverged=diverged,
+        kappa=kappa,
+        logs={"probabilities": probs, "kappa_arith": kappa_arith},
+        notes=notes,
+    )
+
+
+def _flush(est: np.ndarray, bank_est: np.ndarray, w: np.ndarray, start: int) -> None:
+    """Combine buffered bank estimates (B, A, n, 16) with weights (B, A, n) into ``est``."""
+    e = bank_est.copy()
+    dead = ~np.isfinite(e).all(axis=-1)  # diverged models: weight 0, neutral values
+    e[dead] = 0.0
+    e[dead, 3] = 1.0
+    est[:, start : start + e.shape[2]] = combine(e, w)
