@@ -30,9 +30,9 @@ SI), and scales every measurement row by its nominal sigma ``e``::
 so that ``S̃ = H̃ P̃ H̃ᵀ + R̃ = E⁻¹ S E⁻¹``, ``K̃ = P̃ H̃ᵀ S̃⁻¹ = D⁻¹ K E`` and ``K̃ ν̃ = D⁻¹ K ν``.
 ``C = E[w_θ v_rᵀ]`` is the cross-covariance of the attitude process noise and the rate
 measurement noise; only its attitude-by-rate block ``C̃_θr = D_θ⁻¹ C_θr / e_r`` is non-zero.
-At the start ``P̃ = I`` and ``R̃_a = I``: every matrix the arithmetic touches is of order one, so
-rounding and the fixed thresholds (Cholesky pivots, the determinant of ``I + K(p̂)``) do not
-depend on the physical units. Unchanged by the scaling: ``ν̃ᵀ S̃⁻¹ ν̃ = νᵀ S⁻¹ ν``; SI is
+At the start ``P̃ = I`` and ``R̃_a = I``: every matrix the arithmetic touches is of order one
+instead of spanning 11 decades, so the sums in the Joseph update and the Cholesky factor of ``S̃``
+lose no digits to the choice of units. Unchanged by the scaling: ``ν̃ᵀ S̃⁻¹ ν̃ = νᵀ S⁻¹ ν``; SI is
 recovered as ``P = D P̃ D``, ``δx = D x̃``, ``log det S = log det S̃ + 2 Σᵢ log eᵢ``,
 ``tr S_aa = e_a² tr S̃_aa``. Inputs, estimates and records are in SI.
 
@@ -42,7 +42,8 @@ other. Quaternions are scalar-last, as scipy stores them.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple, TypeVar, cast
 
 import numba as nb
 import numpy as np
@@ -60,13 +61,24 @@ from qkf.core.quat import quat_from_rotvec, quat_mul, rotvec_from_quat
 # the finiteness checks still work.
 _FASTMATH = {"reassoc", "contract", "arcp"}
 
-# The per-epoch helpers are inlined at the numba-IR level into the epoch loop, which (like them)
-# is compiled without the NRT: it only reads and writes arrays made elsewhere, so it needs no
-# reference counting. With the NRT, every array handed to an inlined helper or taken from a
-# named tuple costs an atomic incref/decref pair, and at ~100 of them per epoch the split kernel
-# ran 15-40 % slower than the monolithic one.
-_INLINE_NO_NRT = {"cache": True, "fastmath": _FASTMATH, "inline": "always", "_nrt": False}
-_NO_NRT = {"cache": True, "fastmath": _FASTMATH, "_nrt": False}
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _epoch_jit(*, inline: bool = False) -> Callable[[_F], _F]:
+    """``nb.njit`` for the per-epoch code: cached, ``_FASTMATH`` and compiled without the NRT.
+
+    That code only reads and writes arrays allocated elsewhere (:func:`_run_trial`), so it needs
+    no reference counting; with the NRT, every array handed to a helper or taken from a named
+    tuple costs an atomic incref/decref pair, and at ~100 of them per epoch the split kernel ran
+    10-40 % slower than the monolithic one. ``inline``: inline into the caller at the numba-IR
+    level (the loops then see the caller's arrays; called out of line, the helpers were slower).
+    ``_nrt`` is a private numba option, hence the cast for the type checker.
+    """
+    options: dict[str, Any] = {"cache": True, "fastmath": _FASTMATH, "_nrt": False}
+    if inline:
+        options["inline"] = "always"
+    return cast("Callable[[_F], _F]", nb.njit(**options))
+
 
 # Column l of Ω(ω) has one non-zero, ω[_OM_COL[l]], in row _OM_ROW[l].
 _OM_ROW = np.array([0, 1, 2, 0, 0, 1, 1, 2, 2])
@@ -122,7 +134,7 @@ class Records(NamedTuple):
 
 
 class _Scales(NamedTuple):
-    """Factors between SI and the scaled units, computed once per call (see the module doc)."""
+    """Factors between SI and the scaled units, computed once per trial (see the module doc)."""
 
     e_r: float  # rate-row scale √(σ_r² + σ_v²/Δt), rad/s
     inv_er: float  # 1/e_r
@@ -173,7 +185,7 @@ class _Scratch(NamedTuple):
     sinv_rr: np.ndarray  # (3, 3)
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _rodrigues(theta: float) -> tuple[float, float, float]:
     """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.core.so3.rodrigues_coefficients)."""
     t2 = theta * theta
@@ -190,7 +202,7 @@ def _rodrigues(theta: float) -> tuple[float, float, float]:
     return a, b, c
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
     out_w[0, 0] = 0.0
     out_w[0, 1] = -w[2]
@@ -209,7 +221,7 @@ def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
             out_w2[i, j] = v
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _transition(
     wx: np.ndarray, wx2: np.ndarray, rate: float, s: float, r: np.ndarray, g: np.ndarray
 ) -> None:
@@ -230,7 +242,7 @@ def _transition(
             g[i, j] = s * (e + b1 * wx[i, j] + c2 * wx2[i, j])
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray, w: np.ndarray):  # type: ignore[no-untyped-def]
     """A = (I + K(p̂))⁻¹ and ω̂ = A (ω̃ − b̂) into ``a`` and ``w``; False if singular."""
     m00, m11, m22 = 1.0 + p_hat[0], 1.0 + p_hat[1], 1.0 + p_hat[2]
@@ -260,7 +272,7 @@ def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray,
     return True
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _nodes_needed(theta: float, max_nodes: int) -> int:
     """Gauss–Legendre nodes for Q_d at rotation angle θ = |ω̂|Δt (rad) per step.
 
@@ -277,7 +289,7 @@ def _nodes_needed(theta: float, max_nodes: int) -> int:
     return min(n, max_nodes)
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
     """``A Ω(ω)`` (3×9) into ``out``."""
     for l in range(9):
@@ -287,7 +299,7 @@ def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
             out[i, l] = a[i, col] * v
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np.ndarray) -> float:
     """νᵀ S⁻¹ ν restricted to rows/cols lo:lo+3 of S (marginal NIS of one measurement block).
 
@@ -303,7 +315,7 @@ def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np
     return y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
 
 
-@nb.njit(**_NO_NRT)
+@_epoch_jit()
 def _correlation_correction(
     p: np.ndarray,
     q_hat: np.ndarray,
@@ -458,7 +470,7 @@ def _make_scratch(m: int) -> _Scratch:
     )
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _record_diverged(rec: Records, bi: int, k: int) -> None:
     """NaN in every record of epoch ``k`` of a diverged trial."""
     for i in range(16):
@@ -478,7 +490,7 @@ def _record_diverged(rec: Records, bi: int, k: int) -> None:
                 rec.cov[bi, k, i, j] = np.nan
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _measurement_update_and_reset(
     q_hat: np.ndarray,  # (4,) in/out
     b_hat: np.ndarray,  # (3,) in/out
@@ -569,7 +581,7 @@ def _measurement_update_and_reset(
     return True, _rate(gyro, b_hat, p_hat, a, w)
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _record_posterior(
     rec: Records,
     bi: int,
@@ -606,7 +618,7 @@ def _record_posterior(
     return ok
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _propagate_attitude(q_hat: np.ndarray, w: np.ndarray, dt: float, s: _Scratch) -> None:
     """Ĉ ← Ĉ Exp(ω̂ Δt)."""
     for i in range(3):
@@ -618,7 +630,7 @@ def _propagate_attitude(q_hat: np.ndarray, w: np.ndarray, dt: float, s: _Scratch
         q_hat[i] = s.qtmp[i]
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _noise_correlation(
     gg: np.ndarray, a: np.ndarray, corr_scale: np.ndarray, c_tr: np.ndarray
 ) -> None:
@@ -634,7 +646,7 @@ def _noise_correlation(
             c_tr[i, j] = v * corr_scale[i]
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _phi_top_rows(
     rr: np.ndarray,
     gg: np.ndarray,
@@ -666,7 +678,7 @@ def _phi_top_rows(
             phi_top[i, 6 + l] = -v * ratio[i, 6 + l]
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _qd_quadrature(
     wx: np.ndarray,
     wx2: np.ndarray,
@@ -731,7 +743,7 @@ def _qd_quadrature(
                 g_int[i, j] += w_j * gg[i, j]
 
 
-@nb.njit(**_INLINE_NO_NRT)
+@_epoch_jit(inline=True)
 def _propagate_covariance(
     p: np.ndarray,
     q_hat: np.ndarray,
@@ -817,7 +829,7 @@ def _run_trial(bi: int, state: FilterState, inputs: Inputs, c: Constants, rec: R
     _epoch_loop(bi, state, inputs, c, rec, _scale_factors(c), _make_scratch(6 if c.use_rate else 3))
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH, _nrt=False)
+@_epoch_jit()
 def _epoch_loop(
     bi: int,
     state: FilterState,
@@ -828,7 +840,7 @@ def _epoch_loop(
     s: _Scratch,
 ) -> None:
     """Per epoch of trial ``bi``: measurement update and reset, records, then propagation to
-    the next epoch (module doc). Compiled without the NRT (see ``_INLINE_NO_NRT``)."""
+    the next epoch (module doc). Compiled without the NRT (see :func:`_epoch_jit`)."""
     q_hat, b_hat, p_hat = state.q_hat[bi], state.b_hat[bi], state.p_hat[bi]
     p = state.pt[bi]
     gyro, ads_q, ads_rate = inputs.gyro[bi], inputs.ads_q[bi], inputs.ads_rate[bi]
