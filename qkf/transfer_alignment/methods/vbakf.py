@@ -179,7 +179,9 @@ def vb_step(
         raise ValueError("iterations must be at least 1")
     ht = np.swapaxes(h, -1, -2)
     eye_n = np.eye(n)
-    u_pred = rho * (np.asarray(u_prev, dtype=float) - a - 1.0) + a + 1.0  # û⁻ = ρ(û − m − 1) + m + 1
+    u_pred = (
+        rho * (np.asarray(u_prev, dtype=float) - a - 1.0) + a + 1.0
+    )  # û⁻ = ρ(û − m − 1) + m + 1
     u_scale_pred = rho * np.asarray(u_scale_prev, dtype=float)  # Û⁻ = ρ Û
     t_scale_pred = tau * p_nom  # T̂⁻ = τ P̃⁻  (t̂⁻ = n + τ + 1)
     innov = z - np.einsum("...ij,...j->...i", h, x_pred)  # z − H x̂⁻
@@ -191,14 +193,14 @@ def vb_step(
             dx = x - x_pred
             a_mat = dx[..., :, None] * dx[..., None, :] + p  # A = (x̂ − x̂⁻)(x̂ − x̂⁻)ᵀ + P
             # P̂⁻ = T̂/(t̂ − n − 1) with t̂ = n + τ + 2, T̂ = τ P̃⁻ + A
-            p_hat = (t_scale_pred + a_mat) / (tau + 1.0)
+            p_hat = _sym(t_scale_pred + a_mat) / (tau + 1.0)
         if adapt_r:
             res = (z - np.einsum("...ij,...j->...i", h, x))[..., :a]  # z − H x̂
             hph = (h @ p @ ht)[..., :a, :a]
-            b_mat = res[..., :, None] * res[..., None, :] + hph  # B = (z − Hx̂)(…)ᵀ + H P Hᵀ
+            b_mat = res[..., :, None] * res[..., None, :] + _sym(hph)  # B = (z − Hx̂)(…)ᵀ + HPHᵀ
             u = u_pred + 1.0  # û = û⁻ + 1
             u_scale = u_scale_pred + b_mat  # Û = Û⁻ + B
-            r_a = _sym(u_scale) / (u - a - 1.0)[..., None, None]  # R̂ = Û/(û − m − 1)
+            r_a = u_scale / (u - a - 1.0)[..., None, None]  # R̂ = Û/(û − m − 1)
             if isotropic:
                 tr = np.trace(r_a, axis1=-2, axis2=-1) / a
                 r_a = tr[..., None, None] * np.eye(a)
@@ -317,9 +319,10 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
                 u = np.where(good, vb.u, u)
                 u_scale = np.where(good[:, None, None], vb.u_scale, u_scale)
             # effective κ of the calibration block: 1 + (P̂⁻ − P̃⁻)_ii / (q_p0 Δt)
-            delta = np.diagonal(p_hat, axis1=1, axis2=2)[:, CAL] - np.diagonal(
-                p_nom, axis1=1, axis2=2
-            )[:, CAL]
+            delta = (
+                np.diagonal(p_hat, axis1=1, axis2=2)[:, CAL]
+                - np.diagonal(p_nom, axis1=1, axis2=2)[:, CAL]
+            )
             with np.errstate(invalid="ignore"):
                 kap = np.clip(1.0 + delta / q_step, k_min, k_max)
             kappa_log[:, k] = np.where(np.isfinite(kap), kap, 1.0)
