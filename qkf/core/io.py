@@ -69,10 +69,15 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def _nearest_existing(path: Path) -> Path:
-    path = path.absolute()
-    while not path.exists() and path != path.parent:
-        path = path.parent
+def _check_parent(path: Path) -> Path:
+    """Refuse a path whose nearest existing ancestor is not a writable directory."""
+    base = path.parent.absolute()
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if not base.is_dir():
+        raise OutputError(f"{path}: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: no permission to write in {base}")
     return path
 
 
@@ -81,12 +86,7 @@ def check_output_dir(path: str | Path) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"{path}: exists and is not a directory")
-    base = _nearest_existing(path.parent)
-    if not base.is_dir():
-        raise OutputError(f"{path}: {base} is not a directory")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: no permission to write in {base}")
-    return path
+    return _check_parent(path)
 
 
 def check_output_file(path: str | Path) -> Path:
@@ -96,12 +96,7 @@ def check_output_file(path: str | Path) -> Path:
         raise OutputError(f"{path}: is a directory, not a file")
     if path.exists() and not os.access(path, os.W_OK):
         raise OutputError(f"{path}: no permission to overwrite")
-    base = _nearest_existing(path.parent)
-    if not base.is_dir():
-        raise OutputError(f"{path}: {base} is not a directory")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: no permission to write in {base}")
-    return path
+    return _check_parent(path)
 
 
 @contextmanager

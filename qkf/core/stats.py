@@ -90,6 +90,12 @@ def bootstrap_rms(ms: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return out.reshape(counts.shape[0], *ms.shape[1:])
 
 
+def ratio_side(lo: float, hi: float) -> int:
+    """Where an interval of a ratio lies against 1: −1 below (significantly smaller), +1 above,
+    0 when it contains 1."""
+    return -1 if hi < 1.0 else 1 if lo > 1.0 else 0
+
+
 def percentile_interval(samples: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
     """Percentile interval over the first axis (bootstrap replicates)."""
     tail = 50.0 * (1.0 - level)

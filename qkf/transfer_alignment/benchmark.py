@@ -18,7 +18,13 @@ from functools import partial
 import numpy as np
 
 from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
-from qkf.core.stats import ErrorAccumulator, bootstrap_rms, percentile_interval, resample_counts
+from qkf.core.stats import (
+    ErrorAccumulator,
+    bootstrap_rms,
+    percentile_interval,
+    ratio_side,
+    resample_counts,
+)
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.methods import (
@@ -238,11 +244,7 @@ class PairedRatio:
     @property
     def verdict(self) -> str:
         """``better`` (interval below 1), ``worse`` (above 1) or ``inconclusive``."""
-        if self.hi < 1.0:
-            return "better"
-        if self.lo > 1.0:
-            return "worse"
-        return "inconclusive"
+        return ("inconclusive", "worse", "better")[ratio_side(self.lo, self.hi)]
 
 
 def baselines(cfg: Config, labels: list[str]) -> list[str]:

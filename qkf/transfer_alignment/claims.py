@@ -29,7 +29,7 @@ from pydantic import Field
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
 from qkf.core.io import atomic_write_bytes, csv_text, slug, staged_directory
-from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
+from qkf.core.stats import bootstrap_rms, percentile_interval, ratio_side, resample_counts
 from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS
@@ -88,11 +88,8 @@ class Verdict:
 
     @property
     def verdict(self) -> str:
-        if self.hi < 1.0:
-            return "reproduced"
-        if self.lo > 1.0:
-            return "refuted"
-        return "inconclusive"
+        """``reproduced`` (interval below 1), ``refuted`` (above 1) or ``inconclusive``."""
+        return ("inconclusive", "refuted", "reproduced")[ratio_side(self.lo, self.hi)]
 
 
 def load_claims(path: str | Path) -> tuple[ClaimsStudy, dict[tuple[str, tuple[str, ...]], Config]]:
