@@ -281,6 +281,22 @@ class MmaeConfig(StrictModel):
     weight_floor: Annotated[float, Field(ge=0.0, lt=0.1)] = 1e-6
 
 
+class ImmConfig(StrictModel):
+    """Interacting multiple models over the κ action set (docs/methods.md)."""
+
+    p_stay: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.95  # per mixing interval
+    switching: Literal["uniform", "neighbours"] = "uniform"
+    mix_every: Annotated[int, Field(ge=1)] = 1  # epochs between mixings
+
+
+class FadingConfig(StrictModel):
+    """Strong-tracking (fading-memory) filter (docs/methods.md)."""
+
+    forgetting: PositiveFloat = 0.95  # ρ of the innovation covariance estimate
+    softening: Annotated[float, Field(ge=1.0)] = 4.0  # β
+    lambda_max: Annotated[float, Field(ge=1.0)] = 10.0
+
+
 class TunedConfig(StrictModel):
     """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
 
@@ -294,6 +310,8 @@ class AdaptiveConfig(StrictModel):
     qkf: QkfConfig = QkfConfig()
     mmae: MmaeConfig = MmaeConfig()
     tuned: TunedConfig = TunedConfig()
+    imm: ImmConfig = ImmConfig()
+    fading: FadingConfig = FadingConfig()
 
 
 class Sweep(StrictModel):

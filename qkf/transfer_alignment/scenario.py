@@ -18,6 +18,7 @@ is reproducible on its own (whatever the batch it is simulated in) and changing 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -120,7 +121,7 @@ def calibration_jumps(sc: Scenario) -> np.ndarray:
 
 
 def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> list[Maneuver]:
-    axes = ["x", "y", "z"]
+    axes: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
     if spec.shuffle_axes:
         axes = [axes[i] for i in rng.permutation(3)]
     out = []

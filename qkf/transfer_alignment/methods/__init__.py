@@ -31,7 +31,9 @@ from qkf.transfer_alignment.methods.base import (
     prepare,
     validate_output,
 )
+from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
+from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
@@ -44,6 +46,8 @@ _BUILTIN: tuple[tuple[str, Method], ...] = (
     ("sage-husa", run_sage_husa),
     ("qkf", run_qkf),
     ("mmae", run_mmae),
+    ("imm", run_imm),
+    ("fading", run_fading),
 )
 for _name, _method in _BUILTIN:
     METHODS.register(_name, _method)

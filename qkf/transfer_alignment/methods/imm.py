@@ -41,9 +41,11 @@ holds its own calibration process noise ``κ_i q_p0 U_i``, where ``U_i = Q_d(q_p
 
 ``P̃_i`` is the prediction with zero calibration noise (positive semi-definite); the rest of
 ``P_i`` (the gyro noise terms and the correlated rate-noise terms) does not depend on κ and is
-mixed as it is. Spreads are taken between predicted means instead of ``Φ`` times the spreads
-of posterior means: equal to first order (the models' ``Φ`` differ only through their
-``ω̂``, ``A``).
+mixed as it is. ``U`` is evaluated once per trial, at the most probable model's ``ω̂`` and
+``p̂`` (the models differ by parts in 10⁶), in closed form as a series in ``[ω̂×] Δt``
+(:func:`unit_calibration_noise`). Spreads are taken between predicted means instead of ``Φ``
+times the spreads of posterior means: equal to first order (the models' ``Φ`` differ only
+through their ``ω̂``, ``A``).
 
 **Mixing interval.** ``mix_every`` = M ≥ 1 epochs: between mixings the models run as
 independent filters (``Π = I``: ``c̄ = μ``) in one compiled call, and ``p_stay`` is the
