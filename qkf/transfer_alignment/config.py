@@ -297,6 +297,26 @@ class FadingConfig(StrictModel):
     lambda_max: Annotated[float, Field(ge=1.0)] = 10.0
 
 
+class VbakfConfig(StrictModel):
+    """Variational-Bayes AKF, Huang et al. 2018 (docs/methods.md)."""
+
+    iterations: Annotated[int, Field(ge=1, le=1000)] = 10
+    tau: Annotated[float, Field(ge=0.0)] = 3.0  # weight of the nominal prediction P̃⁻
+    forgetting: Annotated[float, Field(gt=0.0, le=1.0)] = 0.9816843611112658  # ρ = 1 − e⁻⁴
+    r_prior_dof: PositiveFloat = 3.0  # τ_R: û₀ = m + 1 + τ_R, Û₀ = τ_R R̃
+    adapt_p: bool = True
+    adapt_r: bool = True
+
+
+class CovarianceMatchingConfig(StrictModel):
+    """Innovation-based covariance matching, Mehra; Mohamed & Schwarz (docs/methods.md)."""
+
+    window: Annotated[int, Field(ge=1, le=100_000)] = 30  # measurement epochs
+    warmup_s: NonNegativeFloat = 100.0
+    adapt_r: bool = True
+    r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
+
+
 class TunedConfig(StrictModel):
     """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
 
@@ -312,6 +332,8 @@ class AdaptiveConfig(StrictModel):
     tuned: TunedConfig = TunedConfig()
     imm: ImmConfig = ImmConfig()
     fading: FadingConfig = FadingConfig()
+    vbakf: VbakfConfig = VbakfConfig()
+    covariance_matching: CovarianceMatchingConfig = CovarianceMatchingConfig()
 
 
 class Sweep(StrictModel):

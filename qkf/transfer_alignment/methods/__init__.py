@@ -31,12 +31,14 @@ from qkf.transfer_alignment.methods.base import (
     prepare,
     validate_output,
 )
+from qkf.transfer_alignment.methods.covariance_matching import run_covariance_matching
 from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
 from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
+from qkf.transfer_alignment.methods.vbakf import run_vbakf
 
 METHODS: Registry[Method] = Registry("method", group="qkf.methods")
 """Methods by name: the package's own first, in their default order, then installed ones."""
@@ -48,6 +50,8 @@ _BUILTIN: tuple[tuple[str, Method], ...] = (
     ("mmae", run_mmae),
     ("imm", run_imm),
     ("fading", run_fading),
+    ("vbakf", run_vbakf),
+    ("covariance-matching", run_covariance_matching),
 )
 for _name, _method in _BUILTIN:
     METHODS.register(_name, _method)
