@@ -14,9 +14,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.markup import escape
 
+from qkf.core.cli_support import SetOption, check_out, fail, out
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
 
@@ -25,19 +24,6 @@ app = typer.Typer(
     no_args_is_help=True,
     help="qkf: adaptive Kalman filtering gym for in-orbit gyro calibration.",
 )
-err = Console(stderr=True)
-out = Console()
-
-SetOption = Annotated[
-    list[str] | None,
-    typer.Option("--set", help="Override a config value: dotted.key=value (YAML value)."),
-]
-
-
-def _fail(msg: str, code: int = 2) -> typer.Exit:
-    # soft_wrap: a message must not be broken at the terminal width (file paths, fields)
-    err.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
-    return typer.Exit(code)
 
 
 ConfigArgument = Annotated[
@@ -49,19 +35,10 @@ def _load(config: str, sets: list[str] | None) -> Config:
     try:
         return load_config(config, sets or [])
     except ConfigError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
 
 
 MATCHING = ("attitude", "attitude_rate")
-
-
-def _check_out(path: Path, kind: str = "dir") -> None:
-    from qkf.core.io import OutputError, check_output_dir, check_output_file
-
-    try:
-        (check_output_dir if kind == "dir" else check_output_file)(path)
-    except OutputError as exc:
-        raise _fail(f"--out: {exc}") from None
 
 
 @app.command("crlb")
@@ -75,12 +52,12 @@ def crlb_cmd(
 ) -> None:
     """Posterior Cramér–Rao bound per epoch (1-σ, display units) as CSV."""
     if matching is not None and matching not in MATCHING:
-        raise _fail(f"--matching: {matching!r} is not {' or '.join(MATCHING)}")
+        raise fail(f"--matching: {matching!r} is not {' or '.join(MATCHING)}")
     sets = list(set_ or [])
     if matching is not None:
         sets.append(f"filter.matching={matching}")
     cfg = _load(config, sets)
-    _check_out(out_file, "file")
+    check_out(out_file, "file")
     from qkf.transfer_alignment.crlb import crlb
     from qkf.transfer_alignment.report import write_crlb_csv
 
@@ -141,27 +118,27 @@ def bench_cmd(
     from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
 
     if (config is None) == (from_manifest is None):
-        raise _fail("give a CONFIG or --from-manifest run.json (not both)")
+        raise fail("give a CONFIG or --from-manifest run.json (not both)")
     if from_manifest is not None:
         if set_ or methods is not None or trials is not None or seed is not None:
-            raise _fail("--from-manifest takes the config, methods, trials and seed from it")
+            raise fail("--from-manifest takes the config, methods, trials and seed from it")
         cfg, methods, trials, seed = _from_manifest(from_manifest)
     else:
         assert config is not None
         cfg = _load(config, set_)
     if trials is not None and not 1 <= trials <= MAX_TRIALS:
-        raise _fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+        raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
     if seed is not None and not 0 <= seed < 2**63:
-        raise _fail("--seed must be between 0 and 2**63 - 1")
+        raise fail("--seed must be between 0 and 2**63 - 1")
     try:
         named = parse_methods(methods or "all")
     except ValueError as exc:
-        raise _fail(f"--methods: {exc}") from None
+        raise fail(f"--methods: {exc}") from None
     if backend not in BACKENDS:
-        raise _fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
+        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
     if workers is not None and workers < 1:
-        raise _fail("--workers must be at least 1")
-    _check_out(out_dir)
+        raise fail("--workers must be at least 1")
+    check_out(out_dir)
     bench = {"progress": not quiet, "backend": backend, "workers": workers}
 
     def show(folder: Path) -> None:
@@ -173,7 +150,7 @@ def bench_cmd(
     try:
         if cfg.sweep is None:
             if resume or overwrite:
-                raise _fail("--resume and --overwrite are for sweeps; a run replaces --out whole")
+                raise fail("--resume and --overwrite are for sweeps; a run replaces --out whole")
             res = run_benchmark(cfg, named, trials, seed, **bench)  # type: ignore[arg-type]
             write_bench(res, out_dir)
             show(out_dir)
@@ -190,7 +167,7 @@ def bench_cmd(
             cases, key, named, out_dir, trials, seed, resume, overwrite, on_case, **bench
         )
     except (ConfigError, MethodOutputError, OutputError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     out.print(f"wrote {summary}")
 
 
@@ -207,8 +184,8 @@ def _from_manifest(path: Path) -> tuple[Config, str, int, int]:
         return cfg, ",".join(specs), int(info["trials"]), int(info["seed"])
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
-            raise _fail(str(exc)) from None
-        raise _fail(f"{path}: not a usable manifest ({exc!r})") from None
+            raise fail(str(exc)) from None
+        raise fail(f"{path}: not a usable manifest ({exc!r})") from None
 
 
 @app.command("plot")
@@ -219,20 +196,20 @@ def plot_cmd(
     from qkf.transfer_alignment.report import redraw_bench
 
     if not folder.is_dir():
-        raise _fail(f"{folder}: no such folder")
+        raise fail(f"{folder}: no such folder")
     targets = (
         [folder]
         if (folder / "rms.csv").is_file()
         else sorted(p.parent for p in folder.glob("*/rms.csv"))
     )
     if not targets:
-        raise _fail(f"{folder}: no qkf bench results (rms.csv) here or one level below")
+        raise fail(f"{folder}: no qkf bench results (rms.csv) here or one level below")
     try:
         for target in targets:
             for path in redraw_bench(target):
                 out.print(f"wrote {path}")
     except ConfigError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
 
 
 @app.command("study")
@@ -257,7 +234,7 @@ def study_cmd(
     try:
         kind = read_yaml_mapping(presets.resolve(study, "studies"), "study").get("kind")
     except ConfigError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     if kind == "claims":
         _claims(study, out_dir, quiet)
         return
@@ -265,7 +242,7 @@ def study_cmd(
         load_study(study)
         prepare_output(out_dir, resume, overwrite)
     except (ConfigError, OutputError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
 
     def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
         out.print(f"{case.label}: {'finished earlier, kept' if reused else 'done'} ({folder}/)")
@@ -273,7 +250,7 @@ def study_cmd(
     try:
         written = run_study(study, out_dir, not quiet, resume, overwrite, on_case)
     except (ConfigError, MethodOutputError, OutputError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     out.print(f"wrote {len(written)} entries under {out_dir}/ (study.csv, study.png)")
 
 
@@ -311,7 +288,7 @@ def train_cmd(
     --force-new.
     """
     if resume and force_new:
-        raise _fail("--resume and --force-new exclude each other")
+        raise fail("--resume and --force-new exclude each other")
     from agents.config import load_train_config, train_config_source
     from agents.training import plan_training, run_training
 
@@ -326,7 +303,7 @@ def train_cmd(
             source=train_config_source(config, sets),
         )
     except ConfigError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     for note in plan.notes:
         out.print(note, soft_wrap=True, markup=False, highlight=False)
     if plan.complete:
@@ -335,7 +312,7 @@ def train_cmd(
     try:
         path = run_training(plan, progress=not quiet)
     except ConfigError as exc:  # hyperparameter values the algorithm refuses; nothing written
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     out.print(f"wrote {path}")
 
 
@@ -359,14 +336,14 @@ def evaluate_cmd(
     from qkf.transfer_alignment.report import write_bench
 
     if not model.is_file():
-        raise _fail(f"{model}: no such model file")
+        raise fail(f"{model}: no such model file")
     if trials < 1:
-        raise _fail("--trials must be at least 1")
+        raise fail("--trials must be at least 1")
     try:
         policy = Policy(model)
         cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
     except ConfigError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     res = run_benchmark(cfg, [f"policy:{model}"], trials=trials, seed=seed, progress=not quiet)
     write_bench(res, out_dir)
     out.print((out_dir / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
@@ -382,7 +359,7 @@ def _claims(study: str, out_dir: Path, quiet: bool) -> None:
         check_output_dir(out_dir)
         run_claims(study, out_dir, progress=not quiet)
     except (ConfigError, MethodOutputError, OutputError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     text = (out_dir / "claims.md").read_text()
     out.print(text, soft_wrap=True, markup=False, highlight=False)
     out.print(f"wrote {out_dir}/ (claims.csv, claims.md, one benchmark folder per config)")
