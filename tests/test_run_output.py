@@ -78,7 +78,7 @@ def test_plot_redraws_every_figure_from_the_files(tmp_path: Path) -> None:
     out = tmp_path / "run"
     assert _bench(out, "--methods", "kf,qkf").exit_code == 0
     before = {p.name: p.read_bytes() for p in out.glob("*.png")}
-    assert set(before) == {"rms_groups.png", "rms_states.png", "kappa.png"}
+    assert set(before) == {"rms_groups.png", "rms_states.png", "kappa.png", "nees.png"}
     for p in out.glob("*.png"):
         p.unlink()
     result = runner.invoke(app, ["plot", str(out)])

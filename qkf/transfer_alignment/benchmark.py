@@ -16,11 +16,13 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
+from scipy import stats as sps
 
 from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
 from qkf.core.stats import (
     ErrorAccumulator,
     bootstrap_rms,
+    nees,
     percentile_interval,
     ratio_side,
     resample_counts,
@@ -36,10 +38,23 @@ from qkf.transfer_alignment.methods import (
     validate_output,
 )
 from qkf.transfer_alignment.methods.base import decision_steps
-from qkf.transfer_alignment.metrics import METRIC_COLUMNS, state_errors, trial_mean_squares
+from qkf.transfer_alignment.methods.covariance import covariance_epochs
+from qkf.transfer_alignment.metrics import (
+    METRIC_COLUMNS,
+    state_errors,
+    trial_mean_squares,
+    window_masks,
+)
 from qkf.transfer_alignment.params import n_epochs
 from qkf.transfer_alignment.scenario import simulate
-from qkf.transfer_alignment.states import DISPLAY_UNIT
+from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUPS
+
+BAND_POINTS = 300
+"""About this many epochs carry the bootstrap bands of the RMS curves (plots, rms_bands.csv)."""
+BAND_RESAMPLES = 1_000
+"""Resamples for the bands (a visual aid; the summary's intervals use ``run.bootstrap``)."""
+NEES_COLUMNS: tuple[str, ...] = ("nees_mean", "nees_in_band")
+"""summary.csv: the method's own covariance judged by NEES (docs/methods.md, "Consistency")."""
 
 
 @dataclass
@@ -54,6 +69,9 @@ class MethodResult:
     kappa: np.ndarray | None = None  # (trials, T) κ in use at the sampling times
     notes: dict[str, str] = field(default_factory=dict)
     trial_values: np.ndarray | None = None  # (trials, K) per-trial metrics, display units
+    band: np.ndarray | None = None  # (T, groups, 3): RMS, lo, hi at band_t, display units
+    nees: np.ndarray | None = None  # (M,) trial-averaged NEES at nees_t (None: no covariance)
+    nees_trials: np.ndarray | None = None  # (M,) trials in each average
 
 
 @dataclass
@@ -68,6 +86,8 @@ class BenchResult:
     backend: str = "local"
     workers: int = 1
     paired: list[PairedRatio] = field(default_factory=list)
+    band_t: np.ndarray = field(default_factory=lambda: np.empty(0))  # (T,) s
+    nees_t: np.ndarray = field(default_factory=lambda: np.empty(0))  # (M,) s
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -109,17 +129,28 @@ class ChunkResult:
     runtime_s: dict[str, float]
     kappa: dict[str, np.ndarray | None]
     notes: dict[str, dict[str, str]]
+    band_ms: dict[str, np.ndarray] = field(default_factory=dict)  # (B, T, groups) display²
+    nees_sum: dict[str, np.ndarray | None] = field(default_factory=dict)  # (M,) sums over trials
+    nees_count: dict[str, np.ndarray] = field(default_factory=dict)  # (M,) trials summed
+
+
+def band_epochs(n: int) -> np.ndarray:
+    """The epochs that carry the bootstrap bands: about :data:`BAND_POINTS`, the last included."""
+    step = max(1, n // BAND_POINTS)
+    return np.unique(np.append(np.arange(0, n, step), n - 1))
 
 
 def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarray) -> ChunkResult:
     """Simulate trials ``ids`` and run every method on them (the unit of work of a backend)."""
     n = n_epochs(cfg.scenario)
     sample = np.arange(0, n, kappa_sampling(cfg))
+    banded = band_epochs(n)
+    cov_epochs = covariance_epochs(cfg)
     data = simulate(cfg, seed, ids)
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
         t0 = time.perf_counter()
-        out = validate_output(m.method(cfg, data), m.name, data.n_trials, n)
+        out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
         res.runtime_s[m.name] = time.perf_counter() - t0
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
         res.sum_sq[m.name] = np.sum(err * err, axis=0)
@@ -127,6 +158,15 @@ def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarra
         res.diverged[m.name] = int(np.count_nonzero(out.diverged))
         res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
         res.notes[m.name] = dict(out.notes)
+        sq = (err[:, banded] / DISPLAY_UNIT) ** 2
+        groups = [np.mean(sq[..., sl], axis=-1) for sl in GROUPS.values()]
+        res.band_ms[m.name] = np.stack(groups, axis=-1)
+        res.nees_sum[m.name], res.nees_count[m.name] = None, np.zeros(cov_epochs.size, np.int64)
+        if out.cov is not None:
+            val = nees(err[:, cov_epochs], np.asarray(out.cov))  # (B, M); NaN: none or diverged
+            ok = np.isfinite(val) & ~np.asarray(out.diverged)[:, None]
+            res.nees_sum[m.name] = np.where(ok, val, 0.0).sum(axis=0)
+            res.nees_count[m.name] = ok.sum(axis=0)
     return res
 
 
@@ -165,6 +205,9 @@ def run_benchmark(
     kappas: dict[str, list[np.ndarray]] = {m: [] for m in labels}
     trial_ms: dict[str, list[np.ndarray]] = {m: [] for m in labels}
     notes: dict[str, dict[str, str]] = {m: {} for m in labels}
+    band_ms: dict[str, list[np.ndarray]] = {m: [] for m in labels}
+    nees_sum: dict[str, np.ndarray | None] = dict.fromkeys(labels)
+    nees_count = {m: np.zeros(covariance_epochs(cfg).size, np.int64) for m in labels}
     task = partial(run_chunk, cfg, prepared, seed)
     chunks = chunk_ids(trials, cfg.run.chunk_trials)
     with progress_bar(trials, f"{', '.join(labels)} ({backend})", progress) as advance:
@@ -177,6 +220,12 @@ def run_benchmark(
                 if trace is not None:
                     kappas[m].append(trace)
                 notes[m].update(res.notes[m])
+                band_ms[m].append(res.band_ms[m])
+                part = res.nees_sum[m]
+                if part is not None:
+                    prev = nees_sum[m]
+                    nees_sum[m] = part if prev is None else prev + part
+                    nees_count[m] += res.nees_count[m]
             advance(res.count)
     # per-trial metric values as written to trials.csv; the summary and its intervals are
     # computed from exactly these numbers (summary = sqrt(mean over trials of value²))
@@ -184,8 +233,16 @@ def run_benchmark(
     boot = cfg.run.bootstrap
     counts = resample_counts(trials, boot.resamples, seed)
     replicates = {m: bootstrap_rms(values[m] ** 2, counts) for m in labels}
+    band_counts = resample_counts(trials, min(BAND_RESAMPLES, boot.resamples), seed + 1)
+    t = np.arange(n) * cfg.scenario.dt_s
+    nees_t = t[covariance_epochs(cfg)]
     results = []
     for m in labels:
+        nees_avg = nees_sum[m]
+        if nees_avg is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                nees_avg = nees_avg / nees_count[m]
+        summary_nees = nees_summary(nees_avg, nees_count[m], nees_t, cfg.run.settled_s, boot.level)
         rms = acc[m].rms()
         point = column_rms(values[m])
         lo, hi = percentile_interval(replicates[m], boot.level)
@@ -196,6 +253,7 @@ def run_benchmark(
                 float(lo[j]),
                 float(hi[j]),
             )
+        summary.update(summary_nees)
         results.append(
             MethodResult(
                 name=m,
@@ -208,20 +266,59 @@ def run_benchmark(
                 kappa=np.concatenate(kappas[m]) if kappas[m] else None,
                 notes=notes[m],
                 spec=specs[m],
+                band=rms_bands(np.concatenate(band_ms[m]), band_counts, boot.level),
+                nees=nees_avg,
+                nees_trials=nees_count[m],
             )
         )
     return BenchResult(
         config=cfg,
         seed=seed,
         trials=trials,
-        t=np.arange(n) * cfg.scenario.dt_s,
+        t=t,
         methods=results,
         bound=crlb(cfg),
         kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
         backend=backend,
         workers=workers,
         paired=paired_ratios(labels, values, replicates, baselines(cfg, labels), boot.level),
+        band_t=t[band_epochs(n)],
+        nees_t=nees_t,
     )
+
+
+def rms_bands(ms: np.ndarray, counts: np.ndarray, level: float) -> np.ndarray:
+    """RMS over trials and its percentile-bootstrap band: ``ms`` (trials, T, G) per-trial mean
+    squares → (T, G, 3) = RMS, lo, hi. Trials that are not finite throughout (diverged) are left
+    out of the band (its RMS then describes the finite trials only)."""
+    finite = np.isfinite(ms).all(axis=(1, 2))
+    use = np.where(finite[:, None, None], ms, 0.0)
+    n_ok = max(1, int(finite.sum()))
+    point = np.sqrt(use.sum(axis=0) / n_ok)
+    w = counts * finite[None, :]
+    reps = np.sqrt(np.tensordot(w, use, axes=1) / np.maximum(w.sum(axis=1), 1.0)[:, None, None])
+    lo, hi = percentile_interval(reps, level)
+    return np.stack([point, lo, hi], axis=-1)
+
+
+def nees_summary(
+    avg: np.ndarray | None, count: np.ndarray, t: np.ndarray, settled_s: float, level: float
+) -> dict[str, float]:
+    """``nees_mean``: the trial-averaged NEES divided by its dimension (15), averaged over the
+    sampled epochs of the settled window (1 for a consistent filter); ``nees_in_band``: the
+    fraction of those epochs whose trial-averaged NEES lies inside the two-sided χ² band of
+    ``level`` (``χ²(15·n)/n`` for an average over n trials). NaN without a covariance."""
+    nan = {c: float("nan") for c in NEES_COLUMNS}
+    if avg is None or t.size == 0:
+        return nan
+    use = window_masks(t, settled_s)["settled"] & (count > 0) & np.isfinite(avg)
+    if not use.any():
+        return nan
+    dof = 15 * count[use]
+    a = (1.0 - level) / 2.0
+    lo, hi = sps.chi2.ppf(a, dof) / count[use], sps.chi2.ppf(1.0 - a, dof) / count[use]
+    inside = (avg[use] >= lo) & (avg[use] <= hi)
+    return {"nees_mean": float(np.mean(avg[use]) / 15.0), "nees_in_band": float(np.mean(inside))}
 
 
 def column_rms(values: np.ndarray) -> np.ndarray:

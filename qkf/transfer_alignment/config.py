@@ -236,6 +236,7 @@ class RunConfig(StrictModel):
     workers: Annotated[int, Field(ge=1, le=1024)] = 1  # local backend: processes (1 = here)
     ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
     settled_s: NonNegativeFloat = 400.0  # start of the settled window of the summary metrics
+    nees_every_s: PositiveFloat = 10.0  # methods report their covariance this often (NEES)
     baseline: str = "kf"  # the method others are compared with (paired.csv), if it is run
     bootstrap: Bootstrap = Bootstrap()
 

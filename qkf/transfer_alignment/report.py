@@ -14,7 +14,7 @@ from qkf.core.config import ConfigError, validate
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
-from qkf.transfer_alignment.benchmark import BenchResult, MethodResult
+from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
 from qkf.transfer_alignment.metrics import (
@@ -26,14 +26,26 @@ from qkf.transfer_alignment.metrics import (
 )
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES, STATE_COLUMNS
 
+INTERVAL_COLUMNS: tuple[str, ...] = tuple(
+    f"{c}{suffix}" for c in METRIC_COLUMNS for suffix in ("", "_lo", "_hi")
+)
+"""Each metric followed by its bootstrap interval (``_lo``, ``_hi``)."""
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "method",
     "trials",
     "diverged",
-    *(f"{c}{suffix}" for c in METRIC_COLUMNS for suffix in ("", "_lo", "_hi")),
+    *INTERVAL_COLUMNS,
+    *NEES_COLUMNS,
     "runtime_s",
 )
-"""summary.csv: each metric followed by its bootstrap interval (``_lo``, ``_hi``)."""
+"""summary.csv: the metrics with their intervals, the NEES judgement of the method's own
+covariance (empty for a method that reports none), and the run time."""
+BAND_COLUMNS: tuple[str, ...] = ("method", "t_s", "group", "rms", "lo", "hi")
+NEES_FILE_COLUMNS: tuple[str, ...] = ("method", "t_s", "nees", "trials", "band_lo", "band_hi")
+LINESTYLES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1)))
+"""Methods that coincide (``kf-tuned`` picking κ = 1 is ``kf``) stay visible: each method has
+its own dash pattern and marker as well as its colour."""
+MARKERS: tuple[str, ...] = ("o", "s", "^", "v", "D", "P", "X", "*", "h", "<", ">")
 
 TRIAL_COLUMNS: tuple[str, ...] = ("method", "trial", *METRIC_COLUMNS)
 PAIRED_COLUMNS: tuple[str, ...] = ("method", "baseline", "metric", "ratio", "lo", "hi")
@@ -54,23 +66,137 @@ def write_crlb_csv(path: str | Path, result: CrlbResult) -> None:
     atomic_write_bytes(path, crlb_csv_text(result).encode())
 
 
+def method_style(index: int, n_points: int) -> dict[str, Any]:
+    """Line style of the ``index``-th method: colour, dash pattern and sparse markers."""
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    return {
+        "color": colors[index % len(colors)],
+        "ls": LINESTYLES[index % len(LINESTYLES)],
+        "marker": MARKERS[index % len(MARKERS)],
+        "markevery": (index * max(1, n_points // 60), max(1, n_points // 12)),
+        "markersize": 4,
+        "markerfacecolor": "none",
+    }
+
+
+def mark_events(ax: Any, cfg: Config) -> None:
+    """Shade the maneuvers and draw the calibration jumps of the config's (nominal) schedule."""
+    sc = cfg.scenario
+    drawn = sc.random_events
+    if drawn is None or drawn.maneuvers is None:
+        for mv in sc.maneuvers:
+            ax.axvspan(mv.start_s, mv.start_s + mv.duration_s, color="0.85", lw=0, zorder=0)
+    if drawn is None or drawn.jump is None:
+        for j in sc.calibration_jumps:
+            ax.axvline(j.t_s, color="k", ls=":", lw=1.0, zorder=1)
+
+
+def events_caption(cfg: Config) -> str:
+    """What the marks of :func:`mark_events` are (and which events are drawn per trial)."""
+    drawn = cfg.scenario.random_events
+    parts = []
+    if drawn is None or drawn.maneuvers is None:
+        parts.append("grey: maneuvers")
+    if cfg.scenario.calibration_jumps and (drawn is None or drawn.jump is None):
+        parts.append("dotted: calibration jump")
+    if drawn is not None:
+        parts.append("events drawn per trial are not marked")
+    return "; ".join(parts)
+
+
 def rms_groups_png(res: BenchResult) -> bytes:
-    """RMS over trials vs time per state group for every method, with the CRLB."""
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    """RMS over trials vs time per state group for every method, with its bootstrap band, the
+    CRLB, the maneuvers and the calibration jumps."""
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True)
     bound_ms = (res.bound.bound / DISPLAY_UNIT) ** 2
     crlb_groups = group_rms(bound_ms)
-    for ax, (g, title) in zip(axes.ravel(), GROUP_TITLES.items(), strict=True):
-        for m in res.methods:
-            ax.semilogy(res.t, group_rms((m.rms / DISPLAY_UNIT) ** 2)[g], label=m.name, lw=1.2)
+    level = 100 * res.config.run.bootstrap.level
+    for gi, (ax, (g, title)) in enumerate(zip(axes.ravel(), GROUP_TITLES.items(), strict=True)):
+        mark_events(ax, res.config)
+        for i, m in enumerate(res.methods):
+            style = method_style(i, res.t.size)
+            ax.semilogy(res.t, group_rms((m.rms / DISPLAY_UNIT) ** 2)[g], label=m.name, lw=1.2,
+                        **style)  # fmt: skip
+            if m.band is not None and res.band_t.size:
+                lo, hi = m.band[:, gi, 1], m.band[:, gi, 2]
+                ax.fill_between(res.band_t, lo, hi, color=style["color"], alpha=0.18, lw=0)
         ax.semilogy(res.t, crlb_groups[g], "k--", lw=1.0, label="CRLB")
         ax.set_title(title)
+        ax.set_ylabel(f"RMS [{UNITS[g]}]")
         ax.grid(True, which="both", alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper right", fontsize=8)
-    fig.suptitle(f"{res.config.name}: RMS over {res.trials} trials (seed {res.seed})")
+    caption = events_caption(res.config)
+    fig.suptitle(
+        f"{res.config.name}: RMS over {res.trials} trials (seed {res.seed}); bands: {level:g} % "
+        f"bootstrap over trials" + (f"; {caption}" if caption else "")
+    )
     fig.tight_layout()
     return figure_png(fig)
+
+
+def nees_png(res: BenchResult) -> bytes | None:
+    """Trial-averaged NEES / 15 vs time for every method that reports a covariance, with the
+    χ² band of the average."""
+    judged = [(i, m) for i, m in enumerate(res.methods) if m.nees is not None]
+    if not judged or res.nees_t.size == 0:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 4.8))
+    mark_events(ax, res.config)
+    for i, m in judged:
+        assert m.nees is not None
+        ax.semilogy(res.nees_t, m.nees / 15.0, lw=1.2, label=m.name,
+                    **method_style(i, res.nees_t.size))  # fmt: skip
+    lo, hi = nees_band(judged[0][1], res.config.run.bootstrap.level)
+    ax.fill_between(res.nees_t, lo / 15.0, hi / 15.0, color="gold", alpha=0.35, lw=0,
+                    label="χ² band (consistent)")  # fmt: skip
+    ax.axvline(res.config.run.settled_s, color="0.4", lw=0.8, ls="--")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("trial-averaged NEES / 15")
+    ax.set_title(f"{res.config.name}: each method's covariance against its errors "
+                 f"(1 = consistent; judged from {res.config.run.settled_s:g} s on)")  # fmt: skip
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def nees_band(m: MethodResult, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The two-sided χ² band of a trial-averaged NEES of 15 states over ``n`` trials."""
+    from scipy import stats as sps
+
+    assert m.nees_trials is not None
+    n = np.maximum(m.nees_trials, 1)
+    a = (1.0 - level) / 2.0
+    return sps.chi2.ppf(a, 15 * n) / n, sps.chi2.ppf(1.0 - a, 15 * n) / n
+
+
+def band_rows(res: BenchResult) -> list[list[object]]:
+    """rms_bands.csv: per method, band epoch and group: the RMS and its bootstrap band."""
+    rows: list[list[object]] = []
+    for m in res.methods:
+        if m.band is None:
+            continue
+        for k, t in enumerate(res.band_t):
+            rows += [[m.name, float(t), g, *map(float, m.band[k, gi])]
+                     for gi, g in enumerate(GROUP_TITLES)]  # fmt: skip
+    return rows
+
+
+def nees_rows(res: BenchResult) -> list[list[object]]:
+    """nees.csv: per method and sampled epoch, the trial-averaged NEES and its χ² band."""
+    rows: list[list[object]] = []
+    level = res.config.run.bootstrap.level
+    for m in res.methods:
+        if m.nees is None or m.nees_trials is None:
+            continue
+        lo, hi = nees_band(m, level)
+        rows += [
+            [m.name, float(t), float(v), int(c), float(a), float(b)]
+            for t, v, c, a, b in zip(res.nees_t, m.nees, m.nees_trials, lo, hi, strict=True)
+        ]
+    return rows
 
 
 def rms_states_png(res: BenchResult) -> bytes:
@@ -78,8 +204,9 @@ def rms_states_png(res: BenchResult) -> bytes:
     fig, axes = plt.subplots(5, 3, figsize=(13, 14), sharex=True)
     bound = res.bound.bound / DISPLAY_UNIT
     for i, ax in enumerate(axes.ravel()):
-        for m in res.methods:
-            ax.semilogy(res.t, m.rms[:, i] / DISPLAY_UNIT[i], lw=1.0, label=m.name)
+        for j, m in enumerate(res.methods):
+            ax.semilogy(res.t, m.rms[:, i] / DISPLAY_UNIT[i], lw=1.0, label=m.name,
+                        **method_style(j, res.t.size))  # fmt: skip
         ax.semilogy(res.t, bound[:, i], "k--", lw=0.8, label="CRLB")
         ax.set_title(STATE_COLUMNS[i], fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
@@ -90,19 +217,19 @@ def rms_states_png(res: BenchResult) -> bytes:
 
 def kappa_png(res: BenchResult) -> bytes | None:
     """κ chosen over time by each adaptive method: median and 10–90 % band over trials."""
-    traced = [m for m in res.methods if m.kappa is not None]
+    traced = [(i, m) for i, m in enumerate(res.methods) if m.kappa is not None]
     if not traced:
         return None
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    for m in traced:
+    mark_events(ax, res.config)
+    for i, m in traced:
         assert m.kappa is not None
         lo, med, hi = np.percentile(m.kappa, [10, 50, 90], axis=0)
-        (line,) = ax.semilogy(res.kappa_t, med, lw=1.3, label=f"{m.name} (median)")
-        ax.fill_between(res.kappa_t, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+        style = method_style(i, res.kappa_t.size)
+        ax.semilogy(res.kappa_t, med, lw=1.3, label=f"{m.name} (median)", **style)
+        ax.fill_between(res.kappa_t, lo, hi, color=style["color"], alpha=0.15, lw=0)
     acts = res.config.adaptive.actions.values()
     ax.set_ylim(min(acts) / 1.5, max(acts) * 1.5)
-    for j in res.config.scenario.calibration_jumps:
-        ax.axvline(j.t_s, color="k", ls=":", lw=1)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("κ  (q_p = κ · q_p0)")
     ax.set_title(f"{res.config.name}: process-noise factor in use (band: 10–90 % of trials)")
@@ -131,11 +258,16 @@ def summary_rows(res: BenchResult) -> list[list[object]]:
             m.name,
             m.trials,
             m.diverged,
-            *(m.summary[c] for c in SUMMARY_COLUMNS[3:-1]),
+            *(m.summary[c] for c in INTERVAL_COLUMNS),
+            *(_blank_nan(m.summary.get(c, float("nan"))) for c in NEES_COLUMNS),
             round(m.runtime_s, 3),
         ]
         for m in res.methods
     ]
+
+
+def _blank_nan(v: float) -> object:
+    return "" if np.isnan(v) else v
 
 
 def trial_rows(res: BenchResult) -> list[list[object]]:
@@ -199,6 +331,22 @@ def summary_markdown(res: BenchResult) -> str:
         lines.append(f"| {m.name} | {m.trials} | " + " | ".join(vals) + f" | {m.runtime_s:.2f} |")
     vals = [f"{crlb_summary[c]:.4g}" for c in METRIC_COLUMNS]
     lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
+    judged = [m for m in res.methods if not np.isnan(m.summary.get("nees_mean", np.nan))]
+    if judged:
+        lines += [
+            "",
+            f"Consistency of each method's own covariance, from {cfg.run.settled_s:g} s on "
+            f"(sampled every {cfg.run.nees_every_s:g} s): trial-averaged NEES / 15 (1 = "
+            f"consistent, > 1 over-confident) and the fraction of sampled epochs inside the "
+            f"{level:g} % χ² band (nees.csv, nees.png):",
+            "",
+            "| method | NEES / 15 | inside band |",
+            "|---|---|---|",
+            *(
+                f"| {m.name} | {m.summary['nees_mean']:.3g} | {m.summary['nees_in_band']:.0%} |"
+                for m in judged
+            ),
+        ]
     recovery = _recovery(res)
     if recovery:
         lines += [
@@ -244,6 +392,10 @@ def bench_tables(res: BenchResult) -> dict[str, bytes]:
     }
     if res.paired:
         files["paired.csv"] = csv_text(PAIRED_COLUMNS, paired_rows(res))
+    if any(m.band is not None for m in res.methods):
+        files["rms_bands.csv"] = csv_text(BAND_COLUMNS, band_rows(res))
+    if any(m.nees is not None for m in res.methods):
+        files["nees.csv"] = csv_text(NEES_FILE_COLUMNS, nees_rows(res))
     if any(m.kappa is not None for m in res.methods):
         files["kappa.csv"] = csv_text(("method", "trial", "t_s", "kappa"), kappa_rows(res))
     return {name: text.encode() for name, text in files.items()}
@@ -252,9 +404,9 @@ def bench_tables(res: BenchResult) -> dict[str, bytes]:
 def bench_figures(res: BenchResult) -> dict[str, bytes]:
     """The figures of a benchmark as PNG bytes."""
     figs = {"rms_groups.png": rms_groups_png(res), "rms_states.png": rms_states_png(res)}
-    kpng = kappa_png(res)
-    if kpng is not None:
-        figs["kappa.png"] = kpng
+    for name, png in (("kappa.png", kappa_png(res)), ("nees.png", nees_png(res))):
+        if png is not None:
+            figs[name] = png
     return figs
 
 
@@ -316,6 +468,8 @@ def load_bench(folder: str | Path) -> BenchResult:
             kappa[r["method"]][int(r["trial"])].append(float(r["kappa"]))
             if not kappa_t or float(r["t_s"]) > kappa_t[-1]:
                 kappa_t.append(float(r["t_s"]))
+    bands, band_t = _read_bands(folder / "rms_bands.csv")
+    nees, nees_t = _read_nees(folder / "nees.csv")
     methods = []
     for r in _read_rows(folder / "summary.csv"):
         name = r["method"]
@@ -327,8 +481,14 @@ def load_bench(folder: str | Path) -> BenchResult:
                 trials=int(r["trials"]),
                 diverged=int(r["diverged"]),
                 runtime_s=float(r["runtime_s"]),
-                summary={c: float(r[c]) for c in SUMMARY_COLUMNS[3:-1]},
+                summary={
+                    c: float(r[c]) if r.get(c, "") != "" else float("nan")
+                    for c in (*INTERVAL_COLUMNS, *NEES_COLUMNS)
+                },
                 kappa=np.array([traces[i] for i in sorted(traces)]) if traces else None,
+                band=bands.get(name),
+                nees=nees.get(name, (None, None))[0],
+                nees_trials=nees.get(name, (None, None))[1],
             )
         )
     return BenchResult(
@@ -341,7 +501,39 @@ def load_bench(folder: str | Path) -> BenchResult:
         kappa_t=np.array(kappa_t),
         backend=str(info.get("backend", "local")),
         workers=int(info.get("workers", 1)),
+        band_t=band_t,
+        nees_t=nees_t,
     )
+
+
+def _read_bands(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """rms_bands.csv back as (T, groups, 3) per method (absent file: no bands)."""
+    if not path.is_file():
+        return {}, np.empty(0)
+    rows = _read_rows(path)
+    groups = list(GROUP_TITLES)
+    t = np.unique([float(r["t_s"]) for r in rows])
+    out: dict[str, np.ndarray] = {}
+    for r in rows:
+        band = out.setdefault(r["method"], np.full((t.size, len(groups), 3), np.nan))
+        k = int(np.searchsorted(t, float(r["t_s"])))
+        band[k, groups.index(r["group"])] = [float(r["rms"]), float(r["lo"]), float(r["hi"])]
+    return out, t
+
+
+def _read_nees(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """nees.csv back as (NEES, trials) per method (absent file: none)."""
+    if not path.is_file():
+        return {}, np.empty(0)
+    per: dict[str, list[tuple[float, float, int]]] = defaultdict(list)
+    for r in _read_rows(path):
+        per[r["method"]].append((float(r["t_s"]), float(r["nees"]), int(r["trials"])))
+    out = {
+        m: (np.array([v[1] for v in vals]), np.array([v[2] for v in vals]))
+        for m, vals in per.items()
+    }
+    t = np.array([v[0] for v in next(iter(per.values()))]) if per else np.empty(0)
+    return out, t
 
 
 def redraw_bench(folder: str | Path) -> list[Path]:

@@ -41,14 +41,22 @@ from qkf.core.io import (
 )
 from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
-from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
+from qkf.transfer_alignment.benchmark import (
+    NEES_COLUMNS,
+    BenchResult,
+    parse_methods,
+    run_benchmark,
+)
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.methods import NamedMethod
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, group_rms, summarize
 from qkf.transfer_alignment.report import (
+    INTERVAL_COLUMNS,
     SUMMARY_COLUMNS,
+    UNITS,
     load_bench,
+    method_style,
     summary_rows,
     write_bench,
     write_crlb_csv,
@@ -70,7 +78,7 @@ class Study(StrictModel):
     methods: list[str] = Field(default_factory=lambda: ["kf"])
     trials: Annotated[int, Field(ge=1)] = 20
     seed: Annotated[int, Field(ge=0)] = 0
-    metric: str = "ma_urad_avg"
+    metric: str = "ma_urad_settled"
     cases: list[Case] = Field(min_length=1)
 
 
@@ -112,8 +120,8 @@ def case_rows(result: CaseResult) -> list[list[object]]:
     if result.bench is None:
         cfg = result.case.cfg
         summary = summarize(result.bound.bound / DISPLAY_UNIT, result.bound.t, cfg.run.settled_s)
-        cells = [summary[c[: -len(s)] if (s := _suffix(c)) else c] for c in SUMMARY_COLUMNS[3:-1]]
-        return [[result.case.label, "crlb", 0, 0, *cells, 0.0]]
+        cells = [summary[c[: -len(s)] if (s := _suffix(c)) else c] for c in INTERVAL_COLUMNS]
+        return [[result.case.label, "crlb", 0, 0, *cells, *[""] * len(NEES_COLUMNS), 0.0]]
     return [[result.case.label, *row] for row in summary_rows(result.bench)]
 
 
@@ -310,61 +318,72 @@ def run_study(
         )
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
-        atomic_write_bytes(where / "study.png", _study_png(study, _curves(results), rows))
+        level = configs[0].run.bootstrap.level
+        png = _study_png(study, _curves(results), rows, level)
+        atomic_write_bytes(where / "study.png", png)
         _remove_stale(where, {c.folder for c in cases} | {"study.csv", "study.png"})
     return [*(out / c.folder for c in cases), out / "study.csv", out / "study.png"]
 
 
-Curve = tuple[str, np.ndarray, dict[str, np.ndarray], bool]  # label, t, group RMS, is bound
+Curve = tuple[str, str, np.ndarray, dict[str, np.ndarray]]  # case, method, t, group RMS
 
 
 def _curves(results: list[CaseResult]) -> list[Curve]:
     curves: list[Curve] = []
     for r in results:
         t = r.bound.t
-        label = r.case.label
-        curves.append((f"{label}: CRLB", t, group_rms((r.bound.bound / DISPLAY_UNIT) ** 2), True))
+        curves.append((r.case.label, "CRLB", t, group_rms((r.bound.bound / DISPLAY_UNIT) ** 2)))
         for m in r.bench.methods if r.bench is not None else []:
-            curves.append((f"{label}: {m.name}", t, group_rms((m.rms / DISPLAY_UNIT) ** 2), False))
+            curves.append((r.case.label, m.name, t, group_rms((m.rms / DISPLAY_UNIT) ** 2)))
     return curves
 
 
-def _study_png(
-    study: Study,
-    curves: list[Curve],
-    rows: list[list[object]],
-) -> bytes:
-    fig = plt.figure(figsize=(13, 9))
-    grid = fig.add_gridspec(3, 2, height_ratios=[1, 1, 0.9])
+CASE_STYLES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1)))
+
+
+def _study_png(study: Study, curves: list[Curve], rows: list[list[object]], level: float) -> bytes:
+    """RMS vs time per group (colour: method, the same in every panel; dash: case) and the
+    study's metric per case and method with its bootstrap interval as error bars."""
+    fig = plt.figure(figsize=(13, 10))
+    grid = fig.add_gridspec(3, 2, height_ratios=[1, 1, 1.0])
     axes = [fig.add_subplot(grid[i // 2, i % 2]) for i in range(4)]
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    case_color = {case.label: colors[i % len(colors)] for i, case in enumerate(study.cases)}
-    styles = ["-", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1))]
+    methods = list(dict.fromkeys(str(r[1]) for r in rows))
+    cases = [c.label for c in study.cases]
+    color = {m: method_style(i, 2)["color"] for i, m in enumerate(methods)}
+    color["CRLB"] = "k"
     for ax, (g, title) in zip(axes, GROUP_TITLES.items(), strict=True):
-        for label, t, groups, is_bound in curves:
-            case_label, what = label.split(": ", 1)
-            ls = "--" if is_bound else styles[study.methods.index(what) % len(styles)]
-            lw = 0.9 if is_bound else 1.3
-            ax.semilogy(t, groups[g], ls=ls, lw=lw, color=case_color[case_label], label=label)
+        for case, what, t, groups in curves:
+            ls = CASE_STYLES[cases.index(case) % len(CASE_STYLES)]
+            lw = 0.9 if what == "CRLB" else 1.3
+            ax.semilogy(t, groups[g], ls=ls, lw=lw, color=color.get(what, "k"),
+                        label=f"{case}: {what}")  # fmt: skip
         ax.set_title(title)
         ax.set_xlabel("time [s]")
+        ax.set_ylabel(f"RMS [{UNITS[g]}]")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7, ncol=2)
     ax = fig.add_subplot(grid[2, :])
-    metric = study.metric if study.kind == "bench" else "ma_urad_final"
+    metric = study.metric if study.kind == "bench" else "ma_urad_settled"
     col = SUMMARY_COLUMNS.index(metric) + 1  # rows carry the case label first
-    labels = [c.label for c in study.cases]
-    methods = sorted({str(r[1]) for r in rows}, key=lambda m: [str(r[1]) for r in rows].index(m))
     width = 0.8 / max(1, len(methods))
     for j, m in enumerate(methods):
-        vals = [
-            next(float(str(r[col])) for r in rows if r[0] == lab and r[1] == m) for lab in labels
-        ]
-        ax.bar(np.arange(len(labels)) + j * width, vals, width, label=m)
-    ax.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
+        cells = [next((r for r in rows if r[0] == lab and r[1] == m), None) for lab in cases]
+        vals = np.array([float(str(r[col])) if r else np.nan for r in cells])
+        err = None
+        if m != "crlb":
+            lo = np.array([float(str(r[col + 1])) if r else np.nan for r in cells])
+            hi = np.array([float(str(r[col + 2])) if r else np.nan for r in cells])
+            err = np.vstack([vals - lo, hi - vals])
+        ax.bar(np.arange(len(cases)) + j * width, vals, width, yerr=err, capsize=3,
+               color=color.get(m, "0.5"), label=m)  # fmt: skip
+    ax.set_xticks(np.arange(len(cases)) + 0.4 - width / 2, cases, rotation=15, ha="right")
     ax.set_yscale("log")
-    ax.set_ylabel(metric)
-    ax.legend(fontsize=8)
+    group = next(g for g in UNITS if metric.startswith(g))
+    window = metric[len(group) + 1 :]
+    ax.set_ylabel(f"{metric} [{UNITS[group]}]")
+    ax.set_title(f"{metric}: RMS over the {window} window, per case "
+                 f"(error bars: {100 * level:g} % bootstrap over trials)")  # fmt: skip
+    ax.legend(fontsize=8, ncol=min(5, len(methods)))
     ax.grid(True, axis="y", which="both", alpha=0.3)
     fig.suptitle(f"study {study.name}" + (f": {study.description}" if study.description else ""))
     fig.tight_layout()

@@ -31,6 +31,9 @@ class MethodOutput:
     ``kappa`` is the process-noise factor in use per trial and epoch (methods that adapt each
     calibration term separately give the geometric mean over the nine terms, a bank its
     probability-weighted geometric mean); ``None`` for a method that does not choose κ.
+    ``cov`` is the error covariance the method reports at the epochs of
+    :func:`~qkf.transfer_alignment.methods.covariance.covariance_epochs` (NaN where it has
+    none); the benchmark judges it by NEES. ``None``: the method reports no covariance.
     ``logs`` holds method-specific arrays for whoever calls the method directly; the benchmark
     does not read them.
     """
@@ -40,10 +43,15 @@ class MethodOutput:
     kappa: np.ndarray | None = None  # (B, N) κ in use, finite and positive
     logs: dict[str, np.ndarray] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)  # one-line facts for the summary
+    cov: np.ndarray | None = None  # (B, M, 15, 15) at the sampled epochs, SI
 
 
-def validate_output(out: object, name: str, n_trials: int, n_epochs: int) -> MethodOutput:
+def validate_output(
+    out: object, name: str, n_trials: int, n_epochs: int, n_cov: int | None = None
+) -> MethodOutput:
     """Check a method's output against the contract; :class:`MethodOutputError` if it fails.
+
+    ``n_cov``: the number of sampled covariance epochs (``cov`` is checked when given).
 
     Called on every chunk as soon as the method returns, so a malformed output stops the run
     before anything is written.
@@ -72,6 +80,13 @@ def validate_output(out: object, name: str, n_trials: int, n_epochs: int) -> Met
         alive = ~div
         if not np.all(np.isfinite(kap[alive]) & (kap[alive] > 0.0)):
             raise MethodOutputError(f"{where}: kappa must be finite and positive")
+    if out.cov is not None and n_cov is not None:
+        cov = np.asarray(out.cov)
+        if cov.shape != (n_trials, n_cov, 15, 15):
+            raise MethodOutputError(
+                f"{where}: cov has shape {cov.shape}, expected ({n_trials}, {n_cov}, 15, 15): "
+                "the covariance at the sampled epochs (methods.covariance.covariance_epochs)"
+            )
     bad_notes = [k for k, v in out.notes.items() if not isinstance(v, str)]
     if bad_notes:
         raise MethodOutputError(f"{where}: notes must be strings ({', '.join(bad_notes)})")

@@ -49,6 +49,7 @@ import numpy as np
 
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
 ATT = slice(0, 3)
@@ -131,6 +132,7 @@ def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
     """
     st = CovarianceMatchingSettings.from_config(cfg)
     kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params
     b, n = data.n_trials, data.n_epochs
     kappas = action_values(cfg)
@@ -153,7 +155,7 @@ def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
         kappa_log[:, k] = kappa_t
         sigma_log[:, k] = kf.sigma_a
         p_att = kf.P[:, ATT, ATT]  # H_a P⁻ H_aᵀ of this epoch
-        rec = kf.step_data(data, k, k + 1, kappa=kappa_t[:, None, :])
+        rec = step_recording(kf, data, k, k + 1, kappa_t[:, None, :], cov)
         est[:, k] = rec.est[:, 0]
         nu = rec.innov[:, 0, ATT]
         dx = rec.dx[:, 0, CAL]
@@ -189,5 +191,6 @@ def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
         diverged=kf.diverged.copy(),
         kappa=kappa,
         logs=logs,
+        cov=cov.cov,
         notes={"covariance-matching": f"window W = {w} measurement epochs"},
     )

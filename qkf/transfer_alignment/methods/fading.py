@@ -67,6 +67,7 @@ from scipy.spatial.transform import Rotation
 
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
 from qkf.transfer_alignment.model import (
     BIAS,
     CALIB,
@@ -211,6 +212,7 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingParams) -> MethodO
     Logs λ per epoch (``lambda``, (B, N)) and the unclipped equivalent calibration κ
     (``kappa_equiv``, (B, N))."""
     kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
     kappas = action_values(cfg)
@@ -244,6 +246,7 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingParams) -> MethodO
         est[:, k] = rec.est[:, 0]
         assert rec.cov is not None
         p_post = rec.cov[:, 0]
+        cov.take(k, p_post)
         rate, p_hat = rec.rate[:, 0], kf.p_hat
         ok = np.isfinite(rate).all(axis=1) & np.isfinite(p_hat).all(axis=1)
         phi = transition(np.where(ok[:, None], rate, 0.0), np.where(ok[:, None], p_hat, 0.0), dt)
@@ -263,5 +266,6 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingParams) -> MethodO
         diverged=kf.diverged.copy(),
         kappa=kappa,
         logs={"lambda": lam_log, "kappa_equiv": kappa_eq},
+        cov=cov.cov,
         notes=notes,
     )

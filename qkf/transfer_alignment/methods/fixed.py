@@ -8,6 +8,7 @@ import numpy as np
 
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.metrics import state_errors
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
@@ -15,8 +16,9 @@ from qkf.transfer_alignment.scenario import ScenarioData, simulate
 def run_fixed(cfg: Config, data: ScenarioData, kappa: float) -> MethodOutput:
     """The transfer-alignment KF with a constant process-noise factor ``κ``."""
     kf = new_filter(cfg, data)
-    rec = kf.step_data(data, 0, data.n_epochs, kappa=kappa)
-    return MethodOutput(est=rec.est, diverged=kf.diverged.copy())
+    cov = CovarianceRecorder(cfg, data.n_trials)
+    rec = step_recording(kf, data, 0, data.n_epochs, kappa, cov)
+    return MethodOutput(est=rec.est, diverged=kf.diverged.copy(), cov=cov.cov)
 
 
 def run_kf(cfg: Config, data: ScenarioData) -> MethodOutput:

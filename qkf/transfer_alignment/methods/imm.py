@@ -75,7 +75,8 @@ from qkf.core.so3 import skew
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
-from qkf.transfer_alignment.methods.mmae import combine
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_arrays
+from qkf.transfer_alignment.methods.mmae import combine, neutral_dead, record_bank_covariance
 from qkf.transfer_alignment.model import CALIB, N_STATES, THETA, calibration_matrix, omega_matrix
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -333,6 +334,8 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
     buf_est = np.empty((b, n_act, BLOCK, 16))
     buf_w = np.empty((b, n_act, BLOCK))
     buf_start = 0
+    cov = CovarianceRecorder(cfg, b)
+    bank_cov = CovarianceRecorder(cfg, b * n_act)
     unit_q: np.ndarray | None = None
     m = prm.mix_every
     for k0 in range(0, n, m):
@@ -341,12 +344,15 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
         if unit_q is not None and live.any():
             c_bar = mix_bank(bank, mu, trans, kappas, unit_q, live)
         sl = slice(k0, k1)
-        rec = bank.step(
+        rec = step_arrays(
+            bank,
             np.repeat(data.gyro[:, sl], n_act, axis=0),
             np.repeat(data.ads_q[:, sl], n_act, axis=0),
             np.repeat(data.ads_rate[:, sl], n_act, axis=0),
             data.has_meas[sl],
             kappa_rows,
+            k0,
+            bank_cov,
         )
         ll = rec.loglik.reshape(b, n_act, k1 - k0)
         for k in range(k1 - k0):
@@ -358,6 +364,10 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
             alive[:, k0 + k] = live
         # buffer the bank's posterior estimates; combine every BLOCK epochs
         bank_est = rec.est.reshape(b, n_act, k1 - k0, 16)
+        if cov.sampled_in(k0, k1).size:  # the mixture covariance at the sampled epochs
+            w_blk = np.moveaxis(probs[:, k0:k1], 2, 1)
+            clean = neutral_dead(bank_est)
+            record_bank_covariance(cov, bank_cov, k0, clean, w_blk, combine(clean, w_blk))
         for k in range(k1 - k0):
             j = k0 + k - buf_start
             buf_est[:, :, j] = bank_est[:, :, k]
@@ -386,13 +396,11 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
         kappa=kappa,
         logs={"probabilities": probs, "kappa_arith": kappa_arith},
         notes=notes,
+        cov=cov.cov,
     )
 
 
 def _flush(est: np.ndarray, bank_est: np.ndarray, w: np.ndarray, start: int) -> None:
     """Combine buffered bank estimates (B, A, n, 16) with weights (B, A, n) into ``est``."""
-    e = bank_est.copy()
-    dead = ~np.isfinite(e).all(axis=-1)  # diverged models: weight 0, neutral values
-    e[dead] = 0.0
-    e[dead, 3] = 1.0
+    e = neutral_dead(bank_est)  # diverged models: weight 0, neutral values
     est[:, start : start + e.shape[2]] = combine(e, w)

@@ -17,6 +17,11 @@ from scipy.spatial.transform import Rotation
 
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import (
+    CovarianceRecorder,
+    mixture_covariance,
+    step_arrays,
+)
 from qkf.transfer_alignment.scenario import ScenarioData
 
 BLOCK = 200
@@ -57,6 +62,35 @@ def combine(est: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
+def neutral_dead(bank_est: np.ndarray) -> np.ndarray:
+    """A copy of bank estimates (..., 16) with diverged members' rows set to neutral values
+    (they carry weight 0; neutral values keep the weighted sums finite)."""
+    e = bank_est.copy()
+    dead = ~np.isfinite(e).all(axis=-1)
+    e[dead] = 0.0
+    e[dead, 3] = 1.0
+    return e
+
+
+def record_bank_covariance(
+    out: CovarianceRecorder,
+    bank: CovarianceRecorder,
+    k0: int,
+    bank_est: np.ndarray,
+    w: np.ndarray,
+    est_mix: np.ndarray,
+) -> None:
+    """The bank's mixture covariance (:func:`mixture_covariance`) at the sampled epochs of a block
+    starting at epoch ``k0``: ``bank_est`` (B, A, n, 16), ``w`` (B, A, n), ``est_mix`` (B, n, 16);
+    ``bank`` holds the members' covariances (rows trial × A + member)."""
+    b, n_act, n = w.shape
+    for k in out.sampled_in(k0, k0 + n):
+        j = int(np.searchsorted(bank.epochs, k))
+        members = bank.cov[:, j].reshape(b, n_act, 15, 15)
+        i = k - k0
+        out.take(k, mixture_covariance(bank_est[:, :, i], members, w[:, :, i], est_mix[:, i]))
+
+
 def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     """The bank over all trials; logs the model probabilities per epoch (``weights``)."""
     kappas = action_values(cfg)
@@ -68,15 +102,20 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     log_w = np.full((b, n_act), -np.log(n_act))
     est = np.empty((b, n, 16))
     weights = np.empty((b, n, n_act))
+    cov = CovarianceRecorder(cfg, b)
+    bank_cov = CovarianceRecorder(cfg, b * n_act)
     for k0 in range(0, n, BLOCK):
         k1 = min(n, k0 + BLOCK)
         sl = slice(k0, k1)
-        rec = bank.step(
+        rec = step_arrays(
+            bank,
             np.repeat(data.gyro[:, sl], n_act, axis=0),
             np.repeat(data.ads_q[:, sl], n_act, axis=0),
             np.repeat(data.ads_rate[:, sl], n_act, axis=0),
             data.has_meas[sl],
             kappa_rows,
+            k0,
+            bank_cov,
         )
         ll = rec.loglik.reshape(b, n_act, k1 - k0)
         w_block = np.empty((b, n_act, k1 - k0))
@@ -84,12 +123,12 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
             log_w = update_log_weights(log_w, ll[:, :, k], floor)
             w_block[:, :, k] = np.exp(log_w)
         weights[:, sl] = np.moveaxis(w_block, 1, 2)
-        bank_est = rec.est.reshape(b, n_act, k1 - k0, 16).copy()
-        dead = ~np.isfinite(bank_est).all(axis=-1)  # diverged models: weight 0, neutral values
-        bank_est[dead] = 0.0
-        bank_est[dead, 3] = 1.0
+        bank_est = neutral_dead(rec.est.reshape(b, n_act, k1 - k0, 16))
         est[:, sl] = combine(bank_est, w_block)
+        record_bank_covariance(cov, bank_cov, k0, bank_est, w_block, est[:, sl])
     diverged = np.asarray(bank.diverged.reshape(b, n_act).all(axis=1))
     # κ in use: the probability-weighted geometric mean of the bank's κ
     kappa = np.exp(weights @ np.log(kappas))
-    return MethodOutput(est=est, diverged=diverged, kappa=kappa, logs={"weights": weights})
+    return MethodOutput(
+        est=est, diverged=diverged, kappa=kappa, logs={"weights": weights}, cov=cov.cov
+    )

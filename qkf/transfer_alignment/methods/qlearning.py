@@ -37,6 +37,7 @@ from qkf.transfer_alignment.methods.base import (
     new_filter,
     per_epoch,
 )
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
 DIVERGENCE_PENALTY = -1e9
@@ -88,6 +89,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     b, n = data.n_trials, data.n_epochs
     period = decision_steps(qc.period_s, cfg.scenario.dt_s)
     main = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
     explore = new_filter(cfg, data)
     rngs = [method_rng(data, i, stream=1) for i in range(b)]
     table = np.zeros((b, n_act, n_act))
@@ -111,7 +113,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
         explore.copy_state_from(main)
         kappa_index[:, j] = s
         actions[:, j] = a
-        rec_m = main.step_data(data, k0, k1, kappa=kappas[s])
+        rec_m = step_recording(main, data, k0, k1, kappas[s], cov)
         rec_e = explore.step_data(data, k0, k1, kappa=kappas[a])
         est[:, k0:k1] = rec_m.est
         t_c = (k1 - k0) * cfg.scenario.dt_s
@@ -134,4 +136,5 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
             "action": actions,
             "q_table": table,
         },
+        cov=cov.cov,
     )

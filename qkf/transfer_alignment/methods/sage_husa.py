@@ -31,6 +31,7 @@ import numpy as np
 
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
@@ -73,6 +74,7 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
     Logs ``Q̂`` per epoch and term as κ = Q̂ / (q_p0 Δt) (``kappa_terms``) and, with R
     adaptation, the assumed attitude sigma (``sigma_a``, rad)."""
     kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
     kappas = action_values(cfg)
@@ -92,7 +94,7 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
         sigma_log[:, k] = kf.sigma_a
         kappa = q_hat / (qp0 * dt)
         kappa_log[:, k] = kappa
-        rec = kf.step_data(data, k, k + 1, kappa=kappa[:, None, :])
+        rec = step_recording(kf, data, k, k + 1, kappa[:, None, :], cov)
         est[:, k] = rec.est[:, 0]
         var_post = rec.var[:, 0, 6:15]
         q_hat = sage_husa_step(q_hat, d[k], rec.dx[:, 0, 6:15], var_post, var_prev, q_min, q_max)
@@ -110,4 +112,4 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
         logs["sigma_a"] = sigma_log
     # κ in use: the geometric mean over the nine calibration terms
     kappa = np.exp(np.mean(np.log(kappa_log), axis=-1))
-    return MethodOutput(est=est, diverged=kf.diverged.copy(), kappa=kappa, logs=logs)
+    return MethodOutput(est=est, diverged=kf.diverged.copy(), kappa=kappa, logs=logs, cov=cov.cov)

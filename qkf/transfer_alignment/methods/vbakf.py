@@ -89,6 +89,7 @@ from qkf.transfer_alignment import model
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
 ATT = slice(0, 3)
@@ -276,6 +277,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
     """
     st = VbakfSettings.from_config(cfg)
     kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params
     b, n = data.n_trials, data.n_epochs
     kappas = action_values(cfg)
@@ -338,7 +340,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
             kappa_log[:, k] = np.where(np.isfinite(kap), kap, 1.0)
         sigma_log[:, k] = kf.sigma_a
         dof_log[:, k] = u
-        rec = kf.step_data(data, k, k + 1, kappa=1.0)  # update with P̂⁻, σ̂_a; nominal Q̃
+        rec = step_recording(kf, data, k, k + 1, 1.0, cov)  # update with P̂⁻, σ̂_a; nominal Q̃
         est[:, k] = rec.est[:, 0]
     # κ reported: the geometric mean over the nine calibration terms
     kappa = np.exp(np.mean(np.log(kappa_log), axis=-1))
@@ -347,6 +349,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
         diverged=kf.diverged.copy(),
         kappa=kappa,
         logs={"kappa_terms": kappa_log, "sigma_a": sigma_log, "r_dof": dof_log},
+        cov=cov.cov,
         notes={
             "vbakf": (
                 f"N = {st.iterations}, τ = {st.tau:g}, ρ = {st.forgetting:.4g}; "

@@ -1,0 +1,164 @@
+"""The covariance a method reports, sampled at a few epochs, so the benchmark can judge it by NEES.
+
+A method's covariance is judged against its own errors (docs/methods.md, "Consistency"): at the
+epochs of :func:`covariance_epochs` (every ``run.nees_every_s``) the method reports the 15 × 15
+error covariance it believes, ``P = E[δx δxᵀ]`` with ``δx = [δθ (rad), δb (rad/s), δp]`` defined
+as in :func:`qkf.transfer_alignment.metrics.state_errors`. Sampling keeps the record small: the
+full (B, N, 15, 15) history of a 900 s run at 10 Hz would take 1.6 GB per 100 trials.
+
+:class:`CovarianceRecorder` collects those samples; :func:`step_recording` runs a filter over a
+block of epochs and records its covariance at the sampled epochs inside the block (the kernel
+records the a-posteriori covariance of every epoch it is asked to, so the block is split there).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import (
+    FilterRecord,
+    SensorData,
+    TransferAlignmentKF,
+    expand_kappa,
+)
+from qkf.transfer_alignment.params import n_epochs
+
+N_STATES = 15
+
+
+def covariance_epochs(cfg: Config) -> np.ndarray:
+    """Epoch indices at which methods report their covariance: ``t = j · run.nees_every_s``,
+    ``j = 1, 2, …`` (rounded to the filter's epochs), and never the initial epoch."""
+    n = n_epochs(cfg.scenario)
+    step = max(1, round(cfg.run.nees_every_s / cfg.scenario.dt_s))
+    return np.arange(step, n, step, dtype=np.int64)
+
+
+class CovarianceRecorder:
+    """Collects a method's covariance (B, M, 15, 15) at the epochs of :func:`covariance_epochs`.
+
+    Unrecorded samples stay NaN (the benchmark leaves them out of the NEES).
+    """
+
+    def __init__(self, cfg: Config, n_trials: int) -> None:
+        self.epochs = covariance_epochs(cfg)
+        self._slot = {int(k): j for j, k in enumerate(self.epochs)}
+        self.cov = np.full((n_trials, self.epochs.size, N_STATES, N_STATES), np.nan)
+
+    def wants(self, k: int) -> bool:
+        """Whether epoch ``k`` is a sampled epoch."""
+        return int(k) in self._slot
+
+    def take(self, k: int, cov: np.ndarray) -> None:
+        """Store the covariance (B, 15, 15) of epoch ``k`` if it is sampled."""
+        j = self._slot.get(int(k))
+        if j is not None:
+            self.cov[:, j] = cov
+
+    def sampled_in(self, k0: int, k1: int) -> np.ndarray:
+        """The sampled epochs in ``[k0, k1)``."""
+        lo, hi = np.searchsorted(self.epochs, [k0, k1])
+        return self.epochs[lo:hi]
+
+
+def step_recording(
+    kf: TransferAlignmentKF,
+    data: SensorData,
+    k0: int,
+    k1: int,
+    kappa: float | np.ndarray,
+    recorder: CovarianceRecorder | None,
+) -> FilterRecord:
+    """:meth:`TransferAlignmentKF.step_data` over ``[k0, k1)`` that also hands the a-posteriori
+    covariance of every sampled epoch inside the block to ``recorder`` (see :func:`step_arrays`).
+    """
+    sl = slice(k0, k1)
+    return step_arrays(
+        kf, data.gyro[:, sl], data.ads_q[:, sl], data.ads_rate[:, sl], data.has_meas[sl],
+        kappa, k0, recorder,
+    )  # fmt: skip
+
+
+def step_arrays(
+    kf: TransferAlignmentKF,
+    gyro: np.ndarray,
+    ads_q: np.ndarray,
+    ads_rate: np.ndarray,
+    has_meas: np.ndarray,
+    kappa: float | np.ndarray,
+    epoch0: int,
+    recorder: CovarianceRecorder | None,
+) -> FilterRecord:
+    """:meth:`TransferAlignmentKF.step` on a block whose first epoch is ``epoch0`` of the run,
+    handing the a-posteriori covariance of the sampled epochs inside it to ``recorder``.
+
+    The block is run in pieces that end on the sampled epochs, the last epoch of each piece with
+    its covariance recorded; the estimates are identical to those of one call.
+    """
+    n = gyro.shape[1]
+    marks = (
+        np.empty(0, dtype=np.int64) if recorder is None else recorder.sampled_in(epoch0, epoch0 + n)
+    )
+    if marks.size == 0:
+        return kf.step(gyro, ads_q, ads_rate, has_meas, kappa)
+    assert recorder is not None
+    kap = expand_kappa(kappa, kf.n_trials, n)  # (B, n, 9): sliced per piece below
+    meas = np.broadcast_to(np.asarray(has_meas, dtype=bool), (kf.n_trials, n))
+
+    def piece(a: int, b: int, record: bool) -> FilterRecord:
+        sl = slice(a, b)
+        return kf.step(gyro[:, sl], ads_q[:, sl], ads_rate[:, sl], meas[:, sl], kap[:, sl], record)
+
+    pieces: list[FilterRecord] = []
+    start = 0
+    for k in [*(marks - epoch0).tolist(), n]:
+        if k > start:  # the epochs before the mark, without covariance
+            pieces.append(piece(start, k, False))
+        if k < n:  # the mark itself
+            rec = piece(k, k + 1, True)
+            assert rec.cov is not None
+            recorder.take(epoch0 + k, rec.cov[:, 0])
+            pieces.append(rec)
+            start = k + 1
+    return concatenate_records(pieces)
+
+
+def mixture_covariance(
+    est: np.ndarray, cov: np.ndarray, weights: np.ndarray, est_mix: np.ndarray
+) -> np.ndarray:
+    """Covariance of a weighted bank about its combined estimate (B, 15, 15).
+
+    ``P = Σ_a w_a (P_a + d_a d_aᵀ)`` with ``d_a`` the bank member's estimate relative to the
+    combined one in the error-state convention (``δθ = Log(Ĉ_mixᵀ Ĉ_a)``, ``Δb = b̂_a − b̂_mix``,
+    ``Δp = p̂_a − p̂_mix``). ``est`` (B, A, 16), ``cov`` (B, A, 15, 15), ``weights`` (B, A)
+    summing to one, ``est_mix`` (B, 16). Members with weight 0 (diverged) are left out.
+    """
+    b, n_act = weights.shape
+    use = (weights > 0.0) & np.isfinite(est).all(axis=-1) & np.isfinite(cov).all(axis=(-1, -2))
+    w = np.where(use, weights, 0.0)
+    d = np.zeros((b, n_act, N_STATES))
+    ok_mix = np.isfinite(est_mix).all(axis=-1)
+    rows = use & ok_mix[:, None]
+    if rows.any():
+        q_mix = np.broadcast_to(est_mix[:, None, 0:4], (b, n_act, 4))[rows]
+        rel = Rotation.from_quat(q_mix).inv() * Rotation.from_quat(est[rows][:, 0:4])
+        d[rows, 0:3] = rel.as_rotvec()
+        d[rows, 3:] = est[rows][:, 4:] - np.broadcast_to(est_mix[:, None, 4:], (b, n_act, 12))[rows]
+    spread = cov + d[..., :, None] * d[..., None, :]
+    out = np.einsum("ba,baij->bij", w, np.where(use[..., None, None], spread, 0.0))
+    out[~ok_mix | ~use.any(axis=1)] = np.nan
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+def concatenate_records(pieces: list[FilterRecord]) -> FilterRecord:
+    """Join consecutive blocks' records along the epoch axis (covariance dropped)."""
+    fields = {
+        f.name: np.concatenate([getattr(p, f.name) for p in pieces], axis=1)
+        for f in dataclasses.fields(FilterRecord)
+        if f.name != "cov"
+    }
+    return FilterRecord(cov=None, **fields)
