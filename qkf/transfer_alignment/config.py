@@ -325,6 +325,16 @@ class TunedConfig(StrictModel):
     seed: Annotated[int, Field(ge=0)] = 1_000_003
 
 
+class OracleConfig(StrictModel):
+    """The oracle schedule (an upper bound, not a flight method): κ_base, then κ_after for a
+    window after each trial's true jump time; all chosen with the truth on tuning seeds."""
+
+    windows_s: list[PositiveFloat] = Field(default=[50.0, 100.0, 200.0, 400.0, 800.0], min_length=1)
+    metric: Literal["ma_urad_settled", "sf_ppm_settled", "calibration_settled"] = (
+        "calibration_settled"
+    )
+
+
 class AdaptiveConfig(StrictModel):
     actions: ActionSet = ActionSet()
     sage_husa: SageHusaConfig = SageHusaConfig()
@@ -335,6 +345,7 @@ class AdaptiveConfig(StrictModel):
     fading: FadingConfig = FadingConfig()
     vbakf: VbakfConfig = VbakfConfig()
     covariance_matching: CovarianceMatchingConfig = CovarianceMatchingConfig()
+    oracle: OracleConfig = OracleConfig()
 
 
 class Sweep(StrictModel):

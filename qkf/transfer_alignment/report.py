@@ -347,6 +347,7 @@ def summary_markdown(res: BenchResult) -> str:
                 for m in judged
             ),
         ]
+    lines += _gap_lines(res)
     recovery = _recovery(res)
     if recovery:
         lines += [
@@ -373,6 +374,34 @@ def summary_markdown(res: BenchResult) -> str:
     if bad:
         lines += ["", "**Diverged trials:** " + ", ".join(f"{m.name}: {m.diverged}" for m in bad)]
     return "\n".join(lines) + "\n"
+
+
+def _gap_lines(res: BenchResult) -> list[str]:
+    """With both ``kf`` and ``oracle`` in the run: each method's share of the settled-window gap
+    between them, ``(kf − method) / (kf − oracle)`` (1 = as good as the oracle)."""
+    by_name = {m.name: m for m in res.methods}
+    if "kf" not in by_name or "oracle" not in by_name:
+        return []
+    cols = [f"{g}_settled" for g in GROUP_TITLES]
+    kf, oracle = by_name["kf"].summary, by_name["oracle"].summary
+    out = [
+        "",
+        "Share of the gap between `kf` and the `oracle` schedule closed, settled window "
+        "(`(kf − method) / (kf − oracle)`; 1 = as good as the oracle, < 0 = worse than kf; – "
+        "where the oracle is not better than kf):",
+        "",
+        "| method | " + " | ".join(cols) + " |",
+        "|" + "---|" * (len(cols) + 1),
+    ]
+    for m in res.methods:
+        if m.name in ("kf", "oracle"):
+            continue
+        cells = []
+        for c in cols:
+            gap = kf[c] - oracle[c]
+            cells.append(f"{(kf[c] - m.summary[c]) / gap:.2f}" if gap > 0 else "–")
+        out.append(f"| {m.name} | " + " | ".join(cells) + " |")
+    return out
 
 
 def bench_tables(res: BenchResult) -> dict[str, bytes]:

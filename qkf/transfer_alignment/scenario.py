@@ -61,6 +61,7 @@ class ScenarioData:
     has_meas: np.ndarray  # (N,) bool
     trial_ids: np.ndarray  # (B,) the trial index each row was drawn for
     seed: int = 0  # the run's seed: with trial_ids, what methods seed their own draws from
+    jump_t: np.ndarray | None = None  # (B,) s, each trial's first calibration jump (NaN: none)
 
     @property
     def n_trials(self) -> int:
@@ -118,6 +119,11 @@ def calibration_jumps(sc: Scenario) -> np.ndarray:
         jumps[after, 0:3] += np.asarray(j.scale_factor_ppm) * units.PPM
         jumps[after, 3:9] += np.asarray(j.misalignment_urad) * units.URAD
     return jumps
+
+
+def first_jump_s(sc: Scenario) -> float:
+    """Time of the scenario's first calibration jump, s (NaN without one)."""
+    return min((j.t_s for j in sc.calibration_jumps), default=float("nan"))
 
 
 def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> list[Maneuver]:
@@ -200,6 +206,7 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     q_true = true_attitude(omega, dt)
     walk_sigma = calibration_walk_sigma(sc)
     jumps = calibration_jumps(sc)
+    jump_t = np.full(b, first_jump_s(sc))
     if random:  # per-trial schedules
         omega_b, q_b = np.empty((b, n, 3)), np.empty((b, n, 4))
         walk_b, jumps_b = np.empty((b, n)), np.empty((b, n, 9))
@@ -217,6 +224,7 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
             q_b[row] = true_attitude(omega_b[row], dt)
             walk_b[row] = calibration_walk_sigma(sc_trial)
             jumps_b[row] = calibration_jumps(sc_trial)
+            jump_t[row] = first_jump_s(sc_trial)
             walk_sigma = walk_b[row]
         if tp.randomize_truth:
             b0 = g["truth"].normal(0.0, tp.prior_sigma_b, 3)
@@ -260,4 +268,5 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         has_meas=measurement_mask(sc),
         trial_ids=ids,
         seed=seed,
+        jump_t=jump_t,
     )

@@ -36,6 +36,7 @@ from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
 from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
+from qkf.transfer_alignment.methods.oracle import run_oracle
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
 from qkf.transfer_alignment.methods.vbakf import run_vbakf
@@ -58,6 +59,10 @@ for _name, _method in _BUILTIN:
 
 BUILTIN_METHODS: tuple[str, ...] = tuple(name for name, _ in _BUILTIN)
 """The package's own methods (``--methods all`` runs these)."""
+
+METHODS.register("oracle", run_oracle)
+"""A reference, not a method: it reads the truth (docs/methods.md, "Oracle schedule"); so it is
+registered but not part of ``--methods all``."""
 
 METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(
     "method factory", group="qkf.method_factories"

@@ -1,0 +1,112 @@
+r"""Oracle schedule: the best piecewise-constant κ around each trial's true calibration jump.
+
+Not a flight method: it reads the truth (``ScenarioData.jump_t``) and is tuned with the truth.
+It is the upper reference of the comparison tables (docs/methods.md, "Oracle schedule"): a
+learned policy's share of the gap is ``(RMS_kf − RMS_policy) / (RMS_kf − RMS_oracle)``.
+
+The schedule, per trial with jump time ``t_j``::
+
+    κ(t) = κ_after   for t_j ≤ t < t_j + W
+    κ(t) = κ_base    otherwise
+
+``(κ_base, κ_after, W)`` are chosen on the tuning seeds (``adaptive.tuned``) by coordinate
+search: ``κ_base`` as the best constant κ of the action set, then ``(κ_after, W)`` over the
+action set × ``adaptive.oracle.windows_s``; the criterion is the settled-window RMS of
+``adaptive.oracle.metric``. Without a jump (no ``jump_t``) the oracle is the tuned constant κ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
+from qkf.transfer_alignment.metrics import state_errors, window_masks
+from qkf.transfer_alignment.scenario import ScenarioData, simulate
+
+METRIC_STATES = {
+    "ma_urad_settled": slice(9, 15),
+    "sf_ppm_settled": slice(6, 9),
+    "calibration_settled": slice(6, 15),
+}
+
+
+def schedule(data: ScenarioData, base: float, after: float, window_s: float) -> np.ndarray:
+    """κ per trial and epoch (B, N): ``after`` in ``[t_j, t_j + W)``, ``base`` elsewhere."""
+    jump = np.full(data.n_trials, np.nan) if data.jump_t is None else data.jump_t
+    t = data.t[None, :]
+    inside = (t >= jump[:, None] - 1e-9) & (t < jump[:, None] + window_s - 1e-9)
+    return np.where(inside, after, base)
+
+
+def run_schedule(cfg: Config, data: ScenarioData, kappa: np.ndarray) -> MethodOutput:
+    """The transfer-alignment KF with a given κ per trial and epoch (B, N)."""
+    kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
+    rec = step_recording(kf, data, 0, data.n_epochs, kappa, cov)
+    return MethodOutput(est=rec.est, diverged=kf.diverged.copy(), kappa=kappa, cov=cov.cov)
+
+
+def settled_score(cfg: Config, data: ScenarioData, out: MethodOutput) -> float:
+    """The tuning criterion: RMS over trials and settled epochs of the metric's states (SI)."""
+    err = state_errors(out.est, data.q_true, data.bias, data.calib)
+    settled = window_masks(data.t, cfg.run.settled_s)["settled"]
+    sl = METRIC_STATES[cfg.adaptive.oracle.metric]
+    value = float(np.sqrt(np.mean(err[:, settled, sl] ** 2)))
+    return value if np.isfinite(value) and not out.diverged.any() else float("inf")
+
+
+@dataclass(frozen=True)
+class OracleSchedule:
+    """The schedule with its parameters fixed (what :class:`Oracle` prepares)."""
+
+    base: float
+    after: float
+    window_s: float
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        out = run_schedule(cfg, data, schedule(data, self.base, self.after, self.window_s))
+        out.notes["oracle"] = (
+            f"κ = {self.after:.3g} for {self.window_s:g} s after the true jump, else "
+            f"{self.base:.3g} (tuned with the truth; an upper reference, not a flight method)"
+        )
+        return out
+
+
+def tune_oracle(cfg: Config) -> OracleSchedule:
+    """Coordinate search for ``(κ_base, κ_after, W)`` on the tuning seeds (module docstring)."""
+    tc = cfg.adaptive.tuned
+    data = simulate(cfg, tc.seed, tc.trials)
+    kappas = [float(k) for k in action_values(cfg)]
+    n = data.n_epochs
+
+    def score(base: float, after: float, window: float) -> float:
+        kap = schedule(data, base, after, window) if after != base else np.full((1, n), base)
+        kap = np.broadcast_to(kap, (data.n_trials, n))
+        return settled_score(cfg, data, run_schedule(cfg, data, kap))
+
+    base = min(kappas, key=lambda k: score(k, k, 0.0))
+    if data.jump_t is None or not np.isfinite(data.jump_t).any():
+        return OracleSchedule(base, base, 0.0)
+    best = (score(base, base, 0.0), base, 0.0)
+    for after in kappas:
+        for window in cfg.adaptive.oracle.windows_s:
+            if after != base:
+                best = min(best, (score(base, after, window), after, window))
+    return OracleSchedule(base, best[1], best[2])
+
+
+class Oracle:
+    """The ``oracle`` method: tuned once per benchmark in :meth:`prepare` (driver process)."""
+
+    def prepare(self, cfg: Config) -> OracleSchedule:
+        return tune_oracle(cfg)
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        return self.prepare(cfg)(cfg, data)
+
+
+run_oracle = Oracle()
