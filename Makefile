@@ -1,6 +1,6 @@
 # qkf: two commands set up a fresh machine and do the work.
 #   make bench   create .venv, install, run the main benchmark (results/paper/)
-#   make test    create .venv, install, run the test suite
+#   make test    create .venv, install, run the test suite (spread over the cores)
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -23,7 +23,7 @@ bench: $(STAMP)
 	$(BIN)/qkf bench configs/paper.yaml --out results/paper
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -3,10 +3,11 @@
 ::
 
     agent: ppo                 # a name of agents.algorithms.ALGORITHMS
+    env: qkf/TransferAlignment-v0  # or qkf/RedundantGyroCalibration-v0 (a gyros scenario)
     scenario: thermal_snap     # preset name or config path
     overrides: []              # --set style overrides of the scenario
     action_type: discrete      # must suit the agent (sac: continuous)
-    reward: likelihood         # a name of envs.rewards.REWARDS
+    reward: likelihood         # a name of the environment's rewards (envs.rewards.REWARDS)
     period_s: 10               # decision period of the environment, s
     n_envs: 16
     seed: 0
@@ -34,10 +35,13 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 
 from agents.algorithms import ALGORITHMS, algorithm_class
+from envs import ENV_ID, GYRO_ENV_ID
 from envs.episodes import OBS_SIZE
+from envs.redundant_gyro import GYRO_REWARDS
 from envs.rewards import REWARDS
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, load_model
+from qkf.core.registry import Registry
 
 HEADER = "invalid training config"
 
@@ -62,8 +66,13 @@ class EvalConfig(StrictModel):
     every_steps: Annotated[int, Field(ge=1)] = 20_000
 
 
+ENV_REWARDS: dict[str, Registry[Any]] = {ENV_ID: REWARDS, GYRO_ENV_ID: GYRO_REWARDS}
+"""The environments ``qkf train`` can train on, with their reward registries."""
+
+
 class TrainConfig(StrictModel):
     agent: str
+    env: str = ENV_ID
     scenario: str = "paper"
     overrides: list[str] = Field(default_factory=list)
     action_type: Literal["discrete", "continuous"] = "discrete"
@@ -85,10 +94,17 @@ class TrainConfig(StrictModel):
             raise ValueError(f"unknown agent {v!r}; known: {', '.join(ALGORITHMS.names())}")
         return v
 
+    @field_validator("env")
+    @classmethod
+    def _known_env(cls, v: str) -> str:
+        if v not in ENV_REWARDS:
+            raise ValueError(f"unknown env {v!r}; known: {', '.join(ENV_REWARDS)}")
+        return v
+
     @field_validator("reward")
     @classmethod
     def _known_reward(cls, v: str) -> str:
-        if v not in REWARDS:
+        if v not in REWARDS and v not in GYRO_REWARDS:
             raise ValueError(f"unknown reward {v!r}; known: {', '.join(REWARDS.names())}")
         return v
 
@@ -116,6 +132,11 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
     if cfg.action_type not in algo.action_types:
         needs = " or ".join(algo.action_types)
         problems.append(f"action_type: {cfg.agent} needs {needs} actions")
+    rewards = ENV_REWARDS[cfg.env]
+    if cfg.reward not in rewards:
+        problems.append(
+            f"reward: {cfg.env} has no reward {cfg.reward!r}; known: {', '.join(rewards)}"
+        )
     if check_scenario:
         problems += _scenario_problems(cfg)
     if algo.load is None:  # the tabular agent
@@ -141,6 +162,8 @@ def _message_lines(exc: ConfigError) -> list[str]:
 
 
 def _scenario_problems(cfg: TrainConfig) -> list[str]:
+    if cfg.env == GYRO_ENV_ID:
+        return _gyro_scenario_problems(cfg)
     from qkf.transfer_alignment.config import load_config
 
     if Path(cfg.scenario).is_dir():
@@ -154,6 +177,23 @@ def _scenario_problems(cfg: TrainConfig) -> list[str]:
             load_config(cfg.scenario, list(cfg.overrides))
         except ConfigError as exc:
             return [f"overrides: {line}" for line in _message_lines(exc)]
+    return []
+
+
+def _gyro_scenario_problems(cfg: TrainConfig) -> list[str]:
+    from qkf.redundant_gyros.config import load_config
+    from qkf.redundant_gyros.geometry import build_unit
+    from qkf.redundant_gyros.pipeline import fault_target
+    from qkf.redundant_gyros.scenario import epochs
+
+    key = "overrides" if cfg.overrides else "scenario"
+    try:
+        gcfg = load_config(cfg.scenario, list(cfg.overrides))
+        fault_target(gcfg, build_unit(gcfg), epochs(gcfg.scenario.duration_s, gcfg.scenario.dt_s))
+    except ConfigError as exc:
+        return [f"{key}: {line}" for line in _message_lines(exc)]
+    except ValueError as exc:
+        return [f"scenario: {exc}"]
     return []
 
 

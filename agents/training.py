@@ -59,11 +59,13 @@ from typing import Any
 
 import numpy as np
 import yaml
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.common.vec_env import TransferAlignmentVecEnv
 from agents.config import HEADER, TrainConfig
 from agents.tabular import TabularQAgent, train_tabular
+from envs import ENV_ID
 from qkf.core.config import ConfigError
 from qkf.core.io import atomic_write_bytes, atomic_write_text
 
@@ -80,7 +82,9 @@ _CKPT = {
 }
 
 
-def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> TransferAlignmentVecEnv:
+def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
+    if cfg.env != ENV_ID:  # any other registered environment: SB3's DummyVecEnv over gym.make
+        return _gym_vec_env(cfg, n_envs, seed)
     env = TransferAlignmentVecEnv(
         n_envs,
         cfg.scenario,
@@ -93,7 +97,23 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> TransferAlignmentV
     return env
 
 
-def _monitored(env: TransferAlignmentVecEnv) -> Any:
+def _gym_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    kwargs: dict[str, Any] = {
+        "scenario": cfg.scenario,
+        "action_type": cfg.action_type,
+        "reward": cfg.reward,
+        "overrides": list(cfg.overrides),
+        "period_s": cfg.period_s,
+    }
+    env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
+    env.seed(seed)
+    return env
+
+
+def _monitored(env: VecEnv) -> Any:
     from stable_baselines3.common.vec_env import VecMonitor
 
     return VecMonitor(env)  # episode returns and lengths for TensorBoard

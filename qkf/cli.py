@@ -365,6 +365,15 @@ def _claims(study: str, out_dir: Path, quiet: bool) -> None:
     out.print(f"wrote {out_dir}/ (claims.csv, claims.md, one benchmark folder per config)")
 
 
+from qkf.redundant_gyros.cli import app as gyros_app  # noqa: E402 - mounted after the commands
+
+app.add_typer(gyros_app, name="gyros", help="Redundant skewed gyros: FDI and UKF calibration.")
+
+from qkf.sca_fusion.cli import fuse_cmd  # noqa: E402 - a top-level command, registered here
+
+app.command("fuse")(fuse_cmd)
+
+
 def main() -> None:  # pragma: no cover - entry point
     app()
 

@@ -1,0 +1,245 @@
+r"""Gymnasium environment ``qkf/RedundantGyroCalibration-v0`` (docs/redundant_gyros.md,
+"Environment").
+
+The adaptive-filter question of the transfer-alignment environment, on the redundant-gyro
+problem: the UKF calibrates one isolated gyro's ``[b, λ, δ_u, δ_v]`` and the agent chooses the
+factor κ on its process noise every decision period. One episode is one realisation of the
+config's scenario (noise drawn from ``np_random`` at reset); the calibrated gyro is
+``calibration.gyro`` or the first fault's gyro, from ``calibration.start_s`` or that fault's
+time on (the FDI's choice is not the agent's question). One step is one decision period
+(``period_s``, default ``environment.period_s``); an episode has ``ceil(K / period)`` steps, K
+the calibrated epochs — fixed by the config (``env.unwrapped.episode_steps``).
+
+Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``), ``action_type``
+(``discrete`` | ``continuous``), ``reward`` (a name of :data:`GYRO_REWARDS`), ``overrides``
+(``--set`` style), ``period_s``, ``render_mode`` (None only).
+
+=====================  ===================================================================
+Action                 Meaning
+=====================  ===================================================================
+``Discrete(A)``        index into ``environment.actions`` (default 11 κ, 0.01 … 100)
+``Box(-1, 1, (1,))``   ``action_type="continuous"``: linear in ``log10 κ`` over that range
+=====================  ===================================================================
+
+=====  ==========================================================  ===========================
+Obs    Meaning (float32; no truth)                                 Typical scale
+=====  ==========================================================  ===========================
+0      ``log10(σ_b / σ_b0)``, the UKF's bias sd over its prior sd   −4 … 0
+1      same, λ                                                      −3 … 0
+2      same, δ_u                                                    −5 … 0
+3      same, δ_v                                                    −5 … 0
+4      mean NIS ``ν² / S`` over the period                          ~1 (jumps at a fault)
+5      log-likelihood gain over a κ = 1 copy, per step              −1 … 1
+6      elapsed fraction of the episode                              0 … 1
+7      ``|ω̂_H|`` of the healthy triad at the period's end, deg/s    0 … 6
+8      κ position in [0, 1] on the action scale                     0 … 1
+=====  ==========================================================  ===========================
+
+Rewards (:data:`GYRO_REWARDS`, entry-point group ``qkf.gyro_rewards``): ``likelihood``
+(default, no truth) ``(ℓ_agent − ℓ_nominal) / (steps Δt)`` with ``ℓ = −½ Σ (ν²/S + log S)``
+and the nominal filter a κ = 1 copy run from the same state over the period; ``oracle``
+(truth) minus the period's mean of ``‖(x̂ − x) / σ₀‖``; ``nees`` (truth) minus
+``|mean NEES / 4 − 1|``. ``info`` carries the true errors at the period's end in display units
+(``errors``: b deg/s, λ, δ_u deg, δ_v deg), ``kappa``, ``t_s``, ``gyro`` and ``diverged``. A
+filter that fails (non-finite, or a covariance that is not positive definite) ends the episode
+(``terminated=True``, reward −1000).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from envs.episodes import ActionMap
+from envs.transfer_alignment import check_render_mode
+from qkf.core.registry import Registry
+from qkf.core.stats import nees
+from qkf.redundant_gyros.config import GyrosConfig, load_config
+from qkf.redundant_gyros.geometry import build_unit
+from qkf.redundant_gyros.pipeline import fault_target, setup_for
+from qkf.redundant_gyros.scenario import epochs, simulate
+from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood, triad_rate
+
+OBS_SIZE = 9
+OBS_LIMIT = 100.0
+DIVERGENCE_REWARD = -1e3
+
+
+@dataclass(frozen=True)
+class GyroPeriod:
+    """One decision period (internal units; P = the period's epochs inside the episode)."""
+
+    loglik_gain: float  # ℓ_agent − ℓ_nominal over the period
+    errors: np.ndarray  # (P, 4) x̂ − x
+    cov: np.ndarray  # (P, 4, 4)
+    prior_sd: np.ndarray  # (4,)
+    steps: int
+    dt: float
+
+
+@dataclass(frozen=True)
+class GyroReward:
+    fn: Callable[[GyroPeriod], float]
+    description: str
+    uses_truth: bool = False
+
+
+GYRO_REWARDS: Registry[GyroReward] = Registry("gyro reward", group="qkf.gyro_rewards")
+"""Rewards of ``qkf/RedundantGyroCalibration-v0`` by name."""
+
+
+def likelihood_reward(o: GyroPeriod) -> float:
+    """``(ℓ_agent − ℓ_nominal) / (steps Δt)``, per second."""
+    return o.loglik_gain / (o.steps * o.dt)
+
+
+def oracle_reward(o: GyroPeriod) -> float:
+    """Minus the period's mean of ``‖(x̂ − x) / σ₀‖``."""
+    return -float(np.mean(np.linalg.norm(o.errors / o.prior_sd, axis=1)))
+
+
+def nees_reward(o: GyroPeriod) -> float:
+    """Minus ``|mean NEES / 4 − 1|`` over the period."""
+    return -abs(float(np.mean(nees(o.errors, o.cov))) / 4.0 - 1.0)
+
+
+GYRO_REWARDS.register(
+    "likelihood", GyroReward(likelihood_reward, "innovation log-likelihood gain over κ = 1")
+)
+GYRO_REWARDS.register(
+    "oracle", GyroReward(oracle_reward, "minus the error over the prior sd", uses_truth=True)
+)
+GYRO_REWARDS.register("nees", GyroReward(nees_reward, "minus |NEES/4 − 1|", uses_truth=True))
+
+
+class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
+    """Choose the calibration UKF's process-noise factor every period (module docstring)."""
+
+    metadata = {"render_modes": []}  # noqa: RUF012 - Gymnasium's convention
+
+    def __init__(
+        self,
+        scenario: str | Path | GyrosConfig = "five_gyros_s_bias",
+        action_type: Literal["discrete", "continuous"] = "discrete",
+        reward: str = "likelihood",
+        overrides: list[str] | None = None,
+        period_s: float | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        check_render_mode(render_mode)
+        if reward not in GYRO_REWARDS:
+            raise ValueError(f"unknown reward {reward!r}; known: {', '.join(GYRO_REWARDS)}")
+        self.render_mode = render_mode
+        self.cfg = (
+            scenario if isinstance(scenario, GyrosConfig) else load_config(scenario, overrides)
+        )
+        self.reward_name = reward
+        self.reward = GYRO_REWARDS[reward]
+        self.unit = build_unit(self.cfg)
+        sc = self.cfg.scenario
+        self.t = epochs(sc.duration_s, sc.dt_s)
+        self.target = fault_target(self.cfg, self.unit, self.t)
+        self.setup = setup_for(self.cfg, self.unit, self.target)
+        period = self.cfg.environment.period_s if period_s is None else period_s
+        if not (math.isfinite(period) and period > 0.0):
+            raise ValueError(f"period_s must be positive, got {period!r}")
+        self.period = max(1, round(period / sc.dt_s))
+        self.n_steps = self.t.size - self.target.start  # calibrated epochs per episode
+        self.episode_steps = math.ceil(self.n_steps / self.period)
+        kappas = np.asarray(self.cfg.environment.actions.values())
+        self.actions = ActionMap(kappas, action_type)
+        self.action_space = self.actions.space
+        self.observation_space = spaces.Box(
+            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
+        )
+        self._start_pos = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
+        self._started = False
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        sc = self.cfg.scenario
+        draw = int(self.np_random.integers(2**63 - 1))
+        data = simulate(self.unit, sc.body_rate, sc.faults, self.t, draw, [0])
+        s = self.target.start
+        assert data.coeffs is not None
+        self._z = data.meas[0, s:, self.setup.gyro]
+        self._rate = triad_rate(self.unit, self.setup, data.meas[0, s:])
+        self._truth = data.coeffs[s:, self.setup.gyro]
+        self._dt = np.diff(self.t[max(s - 1, 0) : s + self.n_steps])
+        if s == 0:
+            self._dt = np.concatenate([[self.t[1] - self.t[0]], self._dt])
+        self._main = CalibrationUKF(self.setup, float(self._dt[0]))
+        self._nominal = CalibrationUKF(self.setup, float(self._dt[0]))
+        self._k = 0
+        self._started = True
+        obs = np.zeros(OBS_SIZE, dtype=np.float32)
+        obs[8] = self._start_pos
+        return obs, {"kappa": 1.0, "diverged": False, "gyro": self.unit.ids[self.setup.gyro]}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        kappa, pos = self.actions(action)
+        main, nominal = self._main, self._nominal
+        nominal.load(main.x, main.P, main.diverged)
+        k0, k1 = self._k, min(self._k + self.period, self.n_steps)
+        nu, var, nu_nom, var_nom = (np.full(k1 - k0, np.nan) for _ in range(4))
+        errors = np.full((k1 - k0, 4), np.nan)
+        cov = np.full((k1 - k0, 4, 4), np.nan)
+        for i, k in enumerate(range(k0, k1)):
+            z, rate, dt = float(self._z[k]), self._rate[k], float(self._dt[k])
+            res = main.step(z, rate, dt, kappa)
+            if not res.ok:
+                break
+            nu[i], var[i] = res.innovation, res.variance
+            errors[i], cov[i] = main.x - self._truth[k], main.P
+            res_nom = nominal.step(z, rate, dt, 1.0)
+            nu_nom[i], var_nom[i] = res_nom.innovation, res_nom.variance
+        self._k = k1
+        diverged = main.diverged
+        info: dict[str, Any] = {
+            "kappa": kappa,
+            "diverged": diverged,
+            "gyro": self.unit.ids[self.setup.gyro],
+            "t_s": float(self.t[self.target.start + k1 - 1]),
+            "errors": errors[-1] / DISPLAY_SCALE,
+        }
+        obs = np.zeros(OBS_SIZE, dtype=np.float32)
+        if diverged:
+            obs[8] = pos
+            return obs, DIVERGENCE_REWARD, True, False, info
+        ll = float(np.sum(log_likelihood(nu, var)))
+        # a κ = 1 copy that fails where the agent's filter does not: no gain either way
+        ll_nom = ll if nominal.diverged else float(np.sum(log_likelihood(nu_nom, var_nom)))
+        steps = k1 - k0
+        period = GyroPeriod(ll - ll_nom, errors, cov, self.setup.p0_sd, steps, float(self._dt[k0]))
+        reward = float(self.reward.fn(period))
+        if not math.isfinite(reward):
+            reward = DIVERGENCE_REWARD
+        sd = np.sqrt(np.diag(main.P))
+        values = [
+            *np.log10(sd / self.setup.p0_sd),
+            float(np.mean(nu**2 / var)),
+            (ll - ll_nom) / steps,
+            k1 / self.n_steps,
+            float(np.linalg.norm(self._rate[k1 - 1])),
+            pos,
+        ]
+        obs = np.clip(
+            np.nan_to_num(np.asarray(values), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT),
+            -OBS_LIMIT,
+            OBS_LIMIT,
+        ).astype(np.float32)
+        return obs, reward, False, k1 >= self.n_steps, info
+
+
+__all__ = ["GYRO_REWARDS", "GyroPeriod", "GyroReward", "RedundantGyroCalibrationEnv"]

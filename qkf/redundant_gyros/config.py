@@ -1,0 +1,384 @@
+"""Configuration of the redundant-gyro problem: the YAML schema, in display units.
+
+Rates and biases are in deg/s everywhere in this problem (docs/redundant_gyros.md, "Units");
+misalignments are in degrees here and converted to rad by :mod:`qkf.redundant_gyros.geometry`;
+scale-factor errors λ are dimensionless. The schema is strict (unknown keys are errors); the
+machinery (YAML, ``--set`` overrides, messages naming file and field) is :mod:`qkf.core.config`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from qkf.core import presets
+from qkf.core.config import (
+    ConfigError,
+    NonNegativeFloat,
+    PositiveFloat,
+    StrictModel,
+    load_model,
+)
+
+GyroId = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]*$", max_length=32)]
+Vector3 = tuple[float, float, float]
+
+MAX_EPOCHS = 10_000_000
+"""Upper bound on ``duration_s / dt_s`` (a typo such as 1e30 would exhaust memory)."""
+MAX_TRIALS = 10_000_000
+PRESET_PREFIX = "five_gyros"
+"""The presets of this problem share this prefix (listed in messages)."""
+
+
+class GyroSpec(StrictModel):
+    """One single-axis gyro: its sensing axis ``w`` and reference axis ``u`` (body frame), given
+    as vectors or by the two mounting angles (``w = [sin α sin β, cos α, sin α cos β]``,
+    ``u = [−cos α sin β, sin α, −cos α cos β]``). ``v = w × u``. Error coefficients left out
+    take the unit's nominal values."""
+
+    id: GyroId
+    w: Vector3 | None = None
+    u: Vector3 | None = None
+    alpha_deg: float | None = None
+    beta_deg: float | None = None
+    bias_deg_s: float | None = None
+    scale: float | None = None
+    delta_u_deg: float | None = None
+    delta_v_deg: float | None = None
+    noise_deg_s: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _one_axis_form(self) -> GyroSpec:
+        vectors = self.w is not None or self.u is not None
+        angles = self.alpha_deg is not None or self.beta_deg is not None
+        if vectors == angles:
+            raise ValueError("give either w and u, or alpha_deg and beta_deg")
+        if vectors and (self.w is None or self.u is None):
+            raise ValueError("w and u must both be given")
+        if angles and (self.alpha_deg is None or self.beta_deg is None):
+            raise ValueError("alpha_deg and beta_deg must both be given")
+        if self.scale is not None and self.scale >= 1.0:
+            raise ValueError("scale (λ) must be below 1")
+        return self
+
+
+def _five_gyros() -> list[GyroSpec]:
+    return [
+        GyroSpec(id="X", w=(1.0, 0.0, 0.0), u=(0.0, 1.0, 0.0)),
+        GyroSpec(id="Y", w=(0.0, 1.0, 0.0), u=(0.0, 0.0, 1.0)),
+        GyroSpec(id="Z", w=(0.0, 0.0, 1.0), u=(1.0, 0.0, 0.0)),
+        GyroSpec(id="S", alpha_deg=55.0, beta_deg=45.0),
+        GyroSpec(id="T", alpha_deg=55.0, beta_deg=75.0),
+    ]
+
+
+class Nominal(StrictModel):
+    """Ground-calibrated (known) error coefficients, the default of every gyro."""
+
+    bias_deg_s: float = 0.01
+    scale: Annotated[float, Field(lt=1.0)] = 0.002
+    delta_u_deg: float = 0.0
+    delta_v_deg: float = 0.0
+
+
+class UnitConfig(StrictModel):
+    """The redundant unit: any n ≥ 4 single-axis gyros."""
+
+    gyros: list[GyroSpec] = Field(default_factory=_five_gyros, min_length=4, max_length=64)
+    nominal: Nominal = Nominal()
+    noise_deg_s: PositiveFloat = 0.001  # white-noise sd per sample, every gyro by default
+
+    @model_validator(mode="after")
+    def _unique_ids(self) -> UnitConfig:
+        ids = [g.id for g in self.gyros]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"gyro ids must be unique: {', '.join(dup)} repeated")
+        return self
+
+    def ids(self) -> list[str]:
+        return [g.id for g in self.gyros]
+
+
+class BodyRate(StrictModel):
+    """Body rate ``ω(t) = c + A sin(2π t / T + φ)`` per axis, deg/s."""
+
+    constant_deg_s: Vector3 = (0.5, -0.3, 0.2)
+    amplitude_deg_s: Vector3 = (3.0, 3.0, 3.0)
+    period_s: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = (20.0, 14.0, 9.0)
+    phase_deg: Vector3 = (0.0, 60.0, 120.0)
+
+
+FaultKind = Literal[
+    "bias_step", "bias_ramp", "scale_step", "misalignment_step", "stuck", "noise_increase"
+]
+FAULT_UNITS: dict[str, str] = {
+    "bias_step": "deg/s added to the bias b",
+    "bias_ramp": "deg/s per s: the bias grows at this rate",
+    "scale_step": "added to λ (dimensionless)",
+    "misalignment_step": "[Δδ_u, Δδ_v] in deg",
+    "stuck": "deg/s added to the frozen last healthy reading",
+    "noise_increase": "factor on the white-noise sd (> 0)",
+}
+"""What ``size`` means for each fault kind."""
+
+
+class Fault(StrictModel):
+    """A fault of one gyro from ``t_s`` on; ``size`` as :data:`FAULT_UNITS` says."""
+
+    gyro: GyroId
+    t_s: NonNegativeFloat
+    kind: FaultKind
+    size: float | tuple[float, float]
+
+    @model_validator(mode="after")
+    def _size_fits_kind(self) -> Fault:
+        pair = isinstance(self.size, tuple)
+        if self.kind == "misalignment_step" and not pair:
+            raise ValueError("size: misalignment_step takes [delta_u_deg, delta_v_deg]")
+        if self.kind != "misalignment_step" and pair:
+            raise ValueError(f"size: {self.kind} takes one number ({FAULT_UNITS[self.kind]})")
+        if self.kind == "noise_increase" and not (isinstance(self.size, float) and self.size > 0):
+            raise ValueError("size: noise_increase takes a positive factor")
+        return self
+
+
+class Scenario(StrictModel):
+    dt_s: PositiveFloat = 0.1
+    duration_s: PositiveFloat = 600.0
+    body_rate: BodyRate = BodyRate()
+    faults: list[Fault] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _fits(self) -> Scenario:
+        if self.duration_s < 2 * self.dt_s:
+            raise ValueError("duration_s must be at least two steps (dt_s)")
+        if self.duration_s / self.dt_s > MAX_EPOCHS:
+            raise ValueError(
+                f"duration_s / dt_s = {self.duration_s / self.dt_s:.3g} epochs; at most "
+                f"{MAX_EPOCHS:,}"
+            )
+        return self
+
+
+def _paper_models() -> list[list[str]]:
+    return [["X", "Y", "Z"], ["X", "S", "T"], ["Y", "Z", "S", "T"]]
+
+
+class ThreeCrossConfig(StrictModel):
+    """Three-cross reconstruction: three models (gyro ids, ≥ 3 each), the signature band and the
+    sliding window over which in-band epochs are counted."""
+
+    models: list[list[GyroId]] = Field(default_factory=_paper_models, min_length=3, max_length=3)
+    band: PositiveFloat = 0.2
+    window_epochs: Annotated[int, Field(ge=1, le=100_000)] = 50
+    null_samples: Annotated[int, Field(ge=1000, le=10_000_000)] = 200_000
+
+    @model_validator(mode="after")
+    def _sizes(self) -> ThreeCrossConfig:
+        for i, m in enumerate(self.models):
+            if len(m) < 3:
+                raise ValueError(f"models.{i}: a model needs at least 3 gyros")
+            if len(set(m)) != len(m):
+                raise ValueError(f"models.{i}: a gyro is listed twice")
+        return self
+
+
+class FdiConfig(StrictModel):
+    false_alarm_probability: Annotated[float, Field(gt=0.0, lt=0.5)] = 1e-3  # per epoch
+    glt_window_epochs: Annotated[int, Field(ge=1, le=100_000)] = 25
+    threecross: ThreeCrossConfig = ThreeCrossConfig()
+    reconfigure_by: Literal["threecross", "glt"] = "threecross"
+
+
+class FeatureTable(StrictModel):
+    """How ``feature_with_errors`` is formed: noise-free readings with the nominal errors left in
+    and a bias step of ``fault_deg_s`` on the gyro, at body rate ``body_rate_deg_s``."""
+
+    fault_deg_s: float = 0.1
+    body_rate_deg_s: Vector3 = (1.0, 1.0, 1.0)
+
+    @model_validator(mode="after")
+    def _nonzero(self) -> FeatureTable:
+        if self.fault_deg_s == 0.0:
+            raise ValueError("fault_deg_s must not be 0")
+        return self
+
+
+class InitialSigma(StrictModel):
+    """Prior sd of the calibrated coefficients around their nominal values."""
+
+    bias_deg_s: PositiveFloat = 0.2
+    scale: PositiveFloat = 0.005
+    delta_deg: PositiveFloat = 20.0
+
+
+class Tolerance(StrictModel):
+    """When a calibration counts as converged (every error within these, to the end)."""
+
+    bias_deg_s: PositiveFloat = 0.002
+    scale: PositiveFloat = 0.001
+    delta_deg: PositiveFloat = 0.5
+
+
+class ProcessNoise(StrictModel):
+    """Random-walk intensities of the calibrated coefficients (κ = 1)."""
+
+    bias_deg_s_per_sqrt_s: NonNegativeFloat = 1e-6
+    scale_per_sqrt_s: NonNegativeFloat = 1e-7
+    delta_deg_per_sqrt_s: NonNegativeFloat = 1e-5
+
+
+class SigmaPoints(StrictModel):
+    """Merwe's scaled sigma points; ``kappa`` None means 3 − n."""
+
+    alpha: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0
+    beta: NonNegativeFloat = 2.0
+    kappa: float | None = None
+
+
+class CalibrationConfig(StrictModel):
+    """UKF calibration of the isolated gyro (docs/redundant_gyros.md, "UKF")."""
+
+    gyro: GyroId | None = None  # None: the gyro the FDI isolates most often
+    source: Literal["threecross", "glt"] = "threecross"
+    start_s: NonNegativeFloat | None = None  # None: the first epoch it is isolated
+    triad: list[GyroId] | None = None  # None: the best-conditioned healthy triad
+    initial_sigma: InitialSigma = InitialSigma()
+    process_noise: ProcessNoise = ProcessNoise()
+    kappa: PositiveFloat = 1.0
+    sigma_points: SigmaPoints = SigmaPoints()
+    converged_within: Tolerance = Tolerance()
+
+    @model_validator(mode="after")
+    def _triad(self) -> CalibrationConfig:
+        if self.triad is not None and (len(self.triad) != 3 or len(set(self.triad)) != 3):
+            raise ValueError("triad: three different gyro ids")
+        return self
+
+
+class Bootstrap(StrictModel):
+    resamples: Annotated[int, Field(ge=100, le=1_000_000)] = 2000
+    level: Annotated[float, Field(gt=0.5, lt=1.0)] = 0.95
+
+
+BENCH_KINDS: tuple[FaultKind, ...] = (
+    "bias_step",
+    "bias_ramp",
+    "scale_step",
+    "misalignment_step",
+    "stuck",
+    "noise_increase",
+)
+
+
+class BenchConfig(StrictModel):
+    """``qkf gyros bench``: fault kinds × sizes in σ units (docs/redundant_gyros.md, "Bench")."""
+
+    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 100
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    duration_s: PositiveFloat = 60.0
+    fault_time_s: NonNegativeFloat = 30.0
+    kinds: list[FaultKind] = Field(default_factory=lambda: list(BENCH_KINDS), min_length=1)
+    sizes_sigma: list[PositiveFloat] = Field(default_factory=lambda: [2.0, 4.0, 8.0, 16.0])
+    ramp_s: PositiveFloat = 10.0  # a ramp reaches its size after this long
+    chunk_trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 64
+    ukf_trials: Annotated[int, Field(ge=0, le=100_000)] = 10
+    bootstrap: Bootstrap = Bootstrap()
+
+    @model_validator(mode="after")
+    def _fault_inside(self) -> BenchConfig:
+        if not self.fault_time_s < self.duration_s:
+            raise ValueError("fault_time_s must be inside the run (below duration_s)")
+        if not self.sizes_sigma:
+            raise ValueError("sizes_sigma: at least one size")
+        return self
+
+
+class ActionSet(StrictModel):
+    """Process-noise factors κ_i = 10^(log10_min + i · log10_step), i = 0 … count − 1."""
+
+    log10_min: float = -2.0
+    log10_step: PositiveFloat = 0.4
+    count: Annotated[int, Field(ge=2, le=101)] = 11
+
+    def values(self) -> list[float]:
+        return [10.0 ** (self.log10_min + i * self.log10_step) for i in range(self.count)]
+
+    def nominal_index(self) -> int:
+        return min(range(self.count), key=lambda i: abs(self.log10_min + i * self.log10_step))
+
+
+class EnvironmentConfig(StrictModel):
+    period_s: PositiveFloat = 10.0
+    actions: ActionSet = ActionSet()
+
+
+class RunConfig(StrictModel):
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+
+
+class GyrosConfig(StrictModel):
+    name: str = "custom"
+    description: str = ""
+    unit: UnitConfig = UnitConfig()
+    scenario: Scenario = Scenario()
+    fdi: FdiConfig = FdiConfig()
+    features: FeatureTable = FeatureTable()
+    calibration: CalibrationConfig = CalibrationConfig()
+    bench: BenchConfig = BenchConfig()
+    environment: EnvironmentConfig = EnvironmentConfig()
+    run: RunConfig = RunConfig()
+
+    @model_validator(mode="after")
+    def _ids_known(self) -> GyrosConfig:
+        known = set(self.unit.ids())
+
+        def check(where: str, gid: str) -> None:
+            if gid not in known:
+                raise ValueError(f"{where}: unknown gyro {gid!r} (unit: {', '.join(known)})")
+
+        for i, m in enumerate(self.fdi.threecross.models):
+            for gid in m:
+                check(f"fdi.threecross.models.{i}", gid)
+        for i, f in enumerate(self.scenario.faults):
+            check(f"scenario.faults.{i}.gyro", f.gyro)
+            if f.t_s >= self.scenario.duration_s:
+                raise ValueError(f"scenario.faults.{i}.t_s: after the end of the run")
+        if self.calibration.gyro is not None:
+            check("calibration.gyro", self.calibration.gyro)
+        for gid in self.calibration.triad or []:
+            check("calibration.triad", gid)
+        if self.calibration.gyro is not None and self.calibration.gyro in (
+            self.calibration.triad or []
+        ):
+            raise ValueError("calibration.triad: must not contain the calibrated gyro")
+        return self
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> GyrosConfig:
+    """Read and validate a gyros config — a path or a preset name (``five_gyros``) — then apply
+    ``--set`` overrides. Raises :class:`ConfigError` naming the file and the field; geometry
+    problems (a model or the unit without three independent axes) are checked as well."""
+    if path is None:
+        cfg = load_model(GyrosConfig, None, overrides)
+        source = "<defaults>"
+    else:
+        resolved = presets.resolve(path)
+        if not resolved.exists() and presets.is_preset_name(path):
+            known = ", ".join(n for n in presets.preset_names() if n.startswith(PRESET_PREFIX))
+            raise ConfigError(f"{path}: no such config file or preset (gyro presets: {known})")
+        cfg = load_model(GyrosConfig, resolved, overrides)
+        source = str(resolved) + (" (with --set)" if overrides else "")
+    from qkf.redundant_gyros.geometry import GeometryError, build_unit
+
+    try:
+        build_unit(cfg)
+    except GeometryError as exc:
+        raise ConfigError(f"invalid configuration\n  {source}: {exc}") from None
+    return cfg
+
+
+__all__ = ["ConfigError", "Fault", "GyrosConfig", "load_config"]

@@ -1,0 +1,128 @@
+r"""Truth simulation of a redundant gyro unit, vectorised over trials (docs/redundant_gyros.md,
+"Scenario").
+
+The body rate and the faults are the same in every trial; only the white noise differs. Trial
+``k`` of a run with seed ``s`` draws its noise from ``default_rng([s, k])``, so it is the same
+whatever batch or chunk it is simulated in, and the same for every fault a benchmark injects
+(common random numbers). Readings (deg/s)::
+
+    m_i(t) = (1 − λ_i(t)) w̄_i(t)ᵀ ω(t) − b_i(t) − σ_i(t) ε_i(t),   ε ~ N(0, 1)
+
+with the coefficients of gyro i changed by its faults from their time on; a stuck gyro repeats
+its last healthy reading (plus ``size``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from qkf.core.units import DEG
+from qkf.redundant_gyros.config import BodyRate, Fault
+from qkf.redundant_gyros.geometry import GyroUnit
+
+
+@dataclass(frozen=True)
+class GyroData:
+    """Readings of B trials over E epochs (simulated, or recorded with ``rate``/``coeffs`` None)."""
+
+    t: np.ndarray  # (E,) s
+    meas: np.ndarray  # (B, E, n) deg/s
+    rate: np.ndarray | None  # (E, 3) true body rate, deg/s
+    coeffs: np.ndarray | None  # (E, n, 4) true coefficients [b deg/s, λ, δ_u rad, δ_v rad]
+
+    @property
+    def n_epochs(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def n_trials(self) -> int:
+        return int(self.meas.shape[0])
+
+
+def epochs(duration_s: float, dt_s: float) -> np.ndarray:
+    """Epoch times ``0, dt, …`` up to ``duration_s`` (exclusive), s."""
+    n = max(2, math.floor(duration_s / dt_s + 1e-9))
+    return np.arange(n) * dt_s
+
+
+def first_epoch(t: np.ndarray, t_s: float) -> int:
+    """Index of the first epoch at or after ``t_s``."""
+    return int(np.searchsorted(t, t_s - 1e-9 * max(1.0, abs(t_s))))
+
+
+def body_rate(profile: BodyRate, t: np.ndarray) -> np.ndarray:
+    """``c + A sin(2π t / T + φ)`` per axis, deg/s; (E, 3)."""
+    c = np.asarray(profile.constant_deg_s)
+    a = np.asarray(profile.amplitude_deg_s)
+    period = np.asarray(profile.period_s)
+    phase = np.asarray(profile.phase_deg) * DEG
+    return c + a * np.sin(2.0 * np.pi * t[:, None] / period + phase)
+
+
+@dataclass(frozen=True)
+class Truth:
+    coeffs: np.ndarray  # (E, n, 4)
+    noise_factor: np.ndarray  # (E, n) multiplies σ_i
+    stuck: tuple[tuple[int, int, float], ...]  # (gyro, first stuck epoch, offset deg/s)
+
+
+def truth(unit: GyroUnit, faults: Sequence[Fault], t: np.ndarray) -> Truth:
+    """The true coefficients per epoch: the nominal ones changed by the faults."""
+    coeffs = np.broadcast_to(unit.nominal, (t.size, unit.n, 4)).copy()
+    factor = np.ones((t.size, unit.n))
+    stuck = []
+    for f in faults:
+        i, k0 = unit.index(f.gyro), first_epoch(t, f.t_s)
+        after = slice(k0, None)
+        if isinstance(f.size, tuple):  # misalignment_step (the schema allows pairs only there)
+            coeffs[after, i, 2] += f.size[0] * DEG
+            coeffs[after, i, 3] += f.size[1] * DEG
+            continue
+        size = float(f.size)
+        if f.kind == "bias_step":
+            coeffs[after, i, 0] += size
+        elif f.kind == "bias_ramp":
+            coeffs[after, i, 0] += size * (t[after] - f.t_s)
+        elif f.kind == "scale_step":
+            coeffs[after, i, 1] += size
+        elif f.kind == "noise_increase":
+            factor[after, i] *= size
+        elif f.kind == "stuck":
+            stuck.append((i, k0, size))
+        else:  # pragma: no cover - the schema admits no other kind
+            raise ValueError(f"fault kind {f.kind!r} with size {f.size!r}")
+    return Truth(coeffs, factor, tuple(stuck))
+
+
+def trial_noise(
+    seed: int, trial_ids: Sequence[int] | np.ndarray, n_epochs: int, n: int
+) -> np.ndarray:
+    """Standard normal draws (B, E, n), trial k from ``default_rng([seed, k])``."""
+    out = np.empty((len(trial_ids), n_epochs, n))
+    for row, k in enumerate(trial_ids):
+        out[row] = np.random.default_rng([seed, int(k)]).standard_normal((n_epochs, n))
+    return out
+
+
+def simulate(
+    unit: GyroUnit,
+    profile: BodyRate,
+    faults: Sequence[Fault],
+    t: np.ndarray,
+    seed: int,
+    trial_ids: Sequence[int] | np.ndarray,
+) -> GyroData:
+    """Readings of the trials ``trial_ids`` (see the module docstring)."""
+    rate = body_rate(profile, t)
+    tr = truth(unit, faults, t)
+    clean = unit.readings(tr.coeffs, rate)  # (E, n)
+    sd = unit.noise * tr.noise_factor  # (E, n)
+    meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
+    for i, k0, offset in tr.stuck:
+        held = meas[:, max(k0 - 1, 0), i] + offset
+        meas[:, k0:, i] = held[:, None]
+    return GyroData(t=t, meas=meas, rate=rate, coeffs=tr.coeffs)

@@ -1,0 +1,1 @@
+"""The least-squares solution of the fusion, arc by arc (docs/sca_fusion.md)."""
