@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 PositiveFloat = Annotated[float, Field(gt=0.0)]
 NonNegativeFloat = Annotated[float, Field(ge=0.0)]
@@ -30,6 +30,19 @@ class StrictModel(BaseModel):
     infinities are refused (a non-finite number in a config is always a mistake)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class TimeWindow(StrictModel):
+    """A time interval ``[start_s, end_s)`` in seconds, non-empty."""
+
+    start_s: NonNegativeFloat
+    end_s: NonNegativeFloat
+
+    @model_validator(mode="after")
+    def _ordered(self) -> TimeWindow:
+        if self.end_s <= self.start_s:
+            raise ValueError("end_s must be greater than start_s")
+        return self
 
 
 def _parse_override(item: str) -> tuple[list[str], Any]:

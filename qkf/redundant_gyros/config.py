@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from qkf.core import presets
+from qkf.core.actions import ActionSet
 from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
@@ -295,20 +296,6 @@ class BenchConfig(StrictModel):
         if not self.sizes_sigma:
             raise ValueError("sizes_sigma: at least one size")
         return self
-
-
-class ActionSet(StrictModel):
-    """Process-noise factors κ_i = 10^(log10_min + i · log10_step), i = 0 … count − 1."""
-
-    log10_min: float = -2.0
-    log10_step: PositiveFloat = 0.4
-    count: Annotated[int, Field(ge=2, le=101)] = 11
-
-    def values(self) -> list[float]:
-        return [10.0 ** (self.log10_min + i * self.log10_step) for i in range(self.count)]
-
-    def nominal_index(self) -> int:
-        return min(range(self.count), key=lambda i: abs(self.log10_min + i * self.log10_step))
 
 
 class EnvironmentConfig(StrictModel):

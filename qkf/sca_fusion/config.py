@@ -18,6 +18,7 @@ from qkf.core.config import (
     NonNegativeFloat,
     PositiveFloat,
     StrictModel,
+    TimeWindow,
     load_model,
 )
 
@@ -75,17 +76,6 @@ class DataConfig(StrictModel):
 
     quaternion_norm_tolerance: PositiveFloat = 1.0e-5
     time_match_tolerance_s: PositiveFloat = 1.0e-5
-
-
-class TimeWindow(StrictModel):
-    start_s: NonNegativeFloat
-    end_s: NonNegativeFloat
-
-    @model_validator(mode="after")
-    def _ordered(self) -> TimeWindow:
-        if self.end_s <= self.start_s:
-            raise ValueError("end_s must be greater than start_s")
-        return self
 
 
 class Oscillation(StrictModel):

@@ -14,11 +14,13 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, model_validator
 
 from qkf.core import presets
+from qkf.core.actions import ActionSet
 from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
     PositiveFloat,
     StrictModel,
+    TimeWindow,
     apply_override,
     load_model,
 )
@@ -31,17 +33,6 @@ class Maneuver(StrictModel):
     duration_s: PositiveFloat
     axis: Literal["x", "y", "z"]
     rate_deg_s: float
-
-
-class TimeWindow(StrictModel):
-    start_s: NonNegativeFloat
-    end_s: NonNegativeFloat
-
-    @model_validator(mode="after")
-    def _ordered(self) -> TimeWindow:
-        if self.end_s <= self.start_s:
-            raise ValueError("end_s must be greater than start_s")
-        return self
 
 
 class WalkSegment(TimeWindow):
@@ -239,21 +230,6 @@ class RunConfig(StrictModel):
     nees_every_s: PositiveFloat = 10.0  # methods report their covariance this often (NEES)
     baseline: str = "kf"  # the method others are compared with (paired.csv), if it is run
     bootstrap: Bootstrap = Bootstrap()
-
-
-class ActionSet(StrictModel):
-    """The process-noise factors κ_i = 10^(log10_min + i · log10_step), i = 0 … count − 1."""
-
-    log10_min: float = -2.0
-    log10_step: PositiveFloat = 0.4
-    count: Annotated[int, Field(ge=2, le=101)] = 11
-
-    def values(self) -> list[float]:
-        return [10.0 ** (self.log10_min + i * self.log10_step) for i in range(self.count)]
-
-    def nominal_index(self) -> int:
-        """Index of the action closest to κ = 1 (where adaptive methods and episodes start)."""
-        return min(range(self.count), key=lambda i: abs(self.log10_min + i * self.log10_step))
 
 
 class SageHusaConfig(StrictModel):
