@@ -1,4 +1,6 @@
-"""The command line: ``qkf crlb``, ``bench``, ``study``, ``train``, ``evaluate``.
+"""The command line: ``qkf crlb``, ``bench``, ``plot``, ``study``, ``train``, ``evaluate``
+(transfer alignment), ``qkf gyros …`` (redundant gyros), ``qkf fuse`` (star camera +
+angular accelerometer) and ``qkf align`` (sensor alignment).
 
 This is the one module that sits above ``qkf``, ``envs`` and ``agents``: the library never
 imports the other two; the commands that need them import them when they run (so ``torch`` is
@@ -15,8 +17,11 @@ from typing import Annotated
 
 import typer
 
+from qkf.alignment.cli import align_cmd
 from qkf.core.cli_support import SetOption, check_out, fail, out
 from qkf.core.config import ConfigError
+from qkf.redundant_gyros.cli import app as gyros_app
+from qkf.sca_fusion.cli import fuse_cmd
 from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
 
 app = typer.Typer(
@@ -75,7 +80,8 @@ def bench_cmd(
         str | None,
         typer.Option(
             help="Comma-separated method specs, or 'all' (default): kf, kf-tuned, sage-husa, qkf, "
-            "mmae; policy:PATH (a saved agent); package.module:function (your own); LABEL=SPEC."
+            "mmae, imm, fading, vbakf, covariance-matching, batch; oracle (truth-tuned reference); "
+            "policy:PATH (a saved agent); package.module:function (your own); LABEL=SPEC."
         ),
     ] = None,
     trials: Annotated[
@@ -365,13 +371,11 @@ def _claims(study: str, out_dir: Path, quiet: bool) -> None:
     out.print(f"wrote {out_dir}/ (claims.csv, claims.md, one benchmark folder per config)")
 
 
-from qkf.redundant_gyros.cli import app as gyros_app  # noqa: E402 - mounted after the commands
-
+# The other estimation problems' commands (each package's cli module imports only typer and
+# qkf.core at import time): a command group, and two top-level commands.
 app.add_typer(gyros_app, name="gyros", help="Redundant skewed gyros: FDI and UKF calibration.")
-
-from qkf.sca_fusion.cli import fuse_cmd  # noqa: E402 - a top-level command, registered here
-
 app.command("fuse")(fuse_cmd)
+app.command("align")(align_cmd)
 
 
 def main() -> None:  # pragma: no cover - entry point

@@ -31,6 +31,7 @@ from qkf.transfer_alignment.methods.base import (
     prepare,
     validate_output,
 )
+from qkf.transfer_alignment.methods.batch import run_batch
 from qkf.transfer_alignment.methods.covariance_matching import run_covariance_matching
 from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
@@ -53,6 +54,7 @@ _BUILTIN: tuple[tuple[str, Method], ...] = (
     ("fading", run_fading),
     ("vbakf", run_vbakf),
     ("covariance-matching", run_covariance_matching),
+    ("batch", run_batch),
 )
 for _name, _method in _BUILTIN:
     METHODS.register(_name, _method)

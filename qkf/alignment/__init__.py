@@ -1,0 +1,1 @@
+"""Attitude-independent alignment calibration of vector sensors (docs/alignment.md)."""
