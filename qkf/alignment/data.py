@@ -12,18 +12,18 @@ the config is never observed at the same time as another sensor.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from qkf.core.csvfile import DataFileError, read_records, where
+
 COLUMNS = ("t_s", "sensor", "w_x", "w_y", "w_z", "r_x", "r_y", "r_z")
 NUMERIC = ("t_s", "w_x", "w_y", "w_z", "r_x", "r_y", "r_z")
 
 
-class DataError(ValueError):
-    """An input file that cannot be used; the message names the file, row and column."""
+DataError = DataFileError  # this problem's name for it
 
 
 @dataclass(frozen=True)
@@ -68,49 +68,13 @@ def paired_sensors(obs: Observations, tolerance_s: float) -> np.ndarray:
     return np.asarray(seen[shared].any(axis=0), dtype=bool)
 
 
-def _where(path: Path, row: int) -> str:
-    return f"{path}: row {row} (line {row + 1})"
-
-
 def read_data(
     path: str | Path, names: list[str], unit_tolerance: float, time_tolerance_s: float
 ) -> Observations:
     """Read and check ``DATA.csv`` for the sensors ``names`` (see the module docstring);
     vectors are normalised after the check. Raises :class:`DataError`."""
     p = Path(path)
-    if p.is_dir():
-        raise DataError(f"{p}: is a directory, not a data file")
-    if not p.is_file():
-        raise DataError(f"{p}: no such data file")
-    try:
-        with p.open(newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
-            header = next(reader, None)
-            if header is None:
-                raise DataError(f"{p}: empty file (expected a header: {', '.join(COLUMNS)})")
-            cols = [h.strip() for h in header]
-            missing = [c for c in COLUMNS if c not in cols]
-            if missing:
-                raise DataError(
-                    f"{p}: missing column {', '.join(missing)} (header: {', '.join(cols)}; "
-                    f"expected {', '.join(COLUMNS)})"
-                )
-            idx = [cols.index(c) for c in COLUMNS]
-            records: list[tuple[int, list[str]]] = []
-            for k, rec in enumerate(reader, start=1):
-                if not rec or all(not x.strip() for x in rec):
-                    continue
-                if len(rec) != len(cols):
-                    raise DataError(
-                        f"{_where(p, k)}: {len(rec)} fields, the header has {len(cols)}"
-                    )
-                records.append((k, [rec[i].strip() for i in idx]))
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{p}: not a text file (UTF-8): {exc.reason}") from None
-    except csv.Error as exc:
-        raise DataError(f"{p}: not a CSV file: {exc}") from None
-    if not records:
-        raise DataError(f"{p}: no data rows")
+    records = read_records(p, COLUMNS)
 
     lookup = {name: i for i, name in enumerate(names)}
     n = len(records)
@@ -121,7 +85,7 @@ def read_data(
         name = rec[1]
         if name not in lookup:
             raise DataError(
-                f"{_where(p, k)}, column sensor: unknown sensor {name!r} "
+                f"{where(p, k)}, column sensor: unknown sensor {name!r} "
                 f"(the config has {', '.join(names)})"
             )
         sensor[j] = lookup[name]
@@ -130,9 +94,9 @@ def read_data(
             try:
                 v = float(text)
             except ValueError:
-                raise DataError(f"{_where(p, k)}, column {col}: {text!r} is not a number") from None
+                raise DataError(f"{where(p, k)}, column {col}: {text!r} is not a number") from None
             if not np.isfinite(v):
-                raise DataError(f"{_where(p, k)}, column {col}: non-finite value {text!r}")
+                raise DataError(f"{where(p, k)}, column {col}: non-finite value {text!r}")
             values[j, c] = v
     t, w, r = values[:, 0], values[:, 1:4], values[:, 4:7]
     for label, vec in (("w", w), ("r", r)):
@@ -141,7 +105,7 @@ def read_data(
         if bad.any():
             j = int(np.argmax(bad))
             raise DataError(
-                f"{_where(p, int(rows[j]))}, columns {label}_x, {label}_y, {label}_z: not a unit "
+                f"{where(p, int(rows[j]))}, columns {label}_x, {label}_y, {label}_z: not a unit "
                 f"vector (norm {norm[j]:.9g} differs from 1 by more than {unit_tolerance:g})"
             )
     obs = Observations(

@@ -12,21 +12,20 @@ split into arcs wherever the spacing departs from the nominal step.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from qkf.core.csvfile import DataFileError, read_records, where
 from qkf.sca_fusion.differentiation import sign_continuous
 
 SCA_COLUMNS = ("t_s", "q_x", "q_y", "q_z", "q_w")
 ACC_COLUMNS = ("t_s", "dw_x", "dw_y", "dw_z")
 
 
-class DataError(ValueError):
-    """A data file that cannot be used; the message names the file, row and column."""
+DataError = DataFileError  # this problem's name for it
 
 
 @dataclass(frozen=True)
@@ -36,10 +35,7 @@ class Series:
     path: str
     t: np.ndarray
     values: np.ndarray
-
-
-def _where(path: Path, row: int) -> str:
-    return f"{path}: row {row} (line {row + 1})"
+    row: np.ndarray | None = None  # (n,) the file row of each epoch (for messages)
 
 
 def read_series(
@@ -47,65 +43,37 @@ def read_series(
 ) -> Series:
     """Read the named columns of a CSV file with a header; check numbers and time order."""
     p = Path(path)
-    if not p.is_file():
-        raise DataError(f"{p}: no such data file")
-    try:
-        with p.open(newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
-            header = next(reader, None)
-            if header is None:
-                raise DataError(f"{p}: empty file (expected a header: {', '.join(columns)})")
-            names = [h.strip() for h in header]
-            missing = [c for c in columns if c not in names]
-            if missing:
-                raise DataError(
-                    f"{p}: missing column {', '.join(missing)} (header: {', '.join(names)}; "
-                    f"expected {', '.join(columns)})"
-                )
-            idx = [names.index(c) for c in columns]
-            rows: list[list[str]] = []
-            for k, rec in enumerate(reader, start=1):
-                if not rec or all(not x.strip() for x in rec):
-                    continue
-                if len(rec) != len(names):
-                    raise DataError(
-                        f"{_where(p, k)}: {len(rec)} fields, the header has {len(names)}"
-                    )
-                rows.append([rec[i] for i in idx])
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{p}: not a text file (UTF-8): {exc.reason}") from None
-    except csv.Error as exc:
-        raise DataError(f"{p}: not a CSV file: {exc}") from None
-    if not rows:
-        raise DataError(f"{p}: no data rows")
+    records = read_records(p, columns)
+    line = [k for k, _ in records]  # file row of each record (blank lines are skipped)
+    rows = [rec for _, rec in records]
     raw = np.array(rows, dtype=object)
     values = np.empty(raw.shape)
     for j, col in enumerate(columns):
         try:
             values[:, j] = raw[:, j].astype(float)
         except ValueError:
-            for k, text in enumerate(raw[:, j], start=1):
+            for k, text in enumerate(raw[:, j]):
                 try:
                     float(text)
                 except ValueError:
                     raise DataError(
-                        f"{_where(p, k)}, column {col}: {text.strip()!r} is not a number"
+                        f"{where(p, line[k])}, column {col}: {text!r} is not a number"
                     ) from None
         bad = ~np.isfinite(values[:, j])
         if bad.any():
-            k = int(np.argmax(bad)) + 1
-            raise DataError(f"{_where(p, k)}, column {col}: non-finite value {raw[k - 1, j]!r}")
+            k = int(np.argmax(bad))
+            raise DataError(f"{where(p, line[k])}, column {col}: non-finite value {raw[k, j]!r}")
     t = values[:, 0]
     step = np.diff(t)
     bad = step <= time_tolerance_s
     if bad.any():
-        k = int(np.argmax(bad)) + 2
+        k = int(np.argmax(bad)) + 1
         raise DataError(
-            f"{_where(p, k)}, column t_s: time {raw[k - 1, 0].strip()} does not increase after "
-            f"{raw[k - 2, 0].strip()} (row {k - 1})"
+            f"{where(p, line[k])}, column t_s: time {raw[k, 0]} does not increase after "
+            f"{raw[k - 1, 0]} (row {line[k - 1]})"
             + (f" by more than {time_tolerance_s:g} s" if time_tolerance_s > 0 else "")
         )
-    return Series(str(p), t, values[:, 1:])
+    return Series(str(p), t, values[:, 1:], np.asarray(line))
 
 
 def read_sca(path: str | Path, norm_tolerance: float, time_tolerance_s: float = 0.0) -> Series:
@@ -115,12 +83,13 @@ def read_sca(path: str | Path, norm_tolerance: float, time_tolerance_s: float = 
     norm = np.linalg.norm(s.values, axis=1)
     bad = np.abs(norm - 1.0) > norm_tolerance
     if bad.any():
-        k = int(np.argmax(bad)) + 1
+        k = int(np.argmax(bad))
+        row = k + 1 if s.row is None else int(s.row[k])
         raise DataError(
-            f"{_where(Path(path), k)}, columns q_x, q_y, q_z, q_w: quaternion norm "
-            f"{norm[k - 1]:.9g} differs from 1 by more than {norm_tolerance:g}"
+            f"{where(Path(path), row)}, columns q_x, q_y, q_z, q_w: quaternion norm "
+            f"{norm[k]:.9g} differs from 1 by more than {norm_tolerance:g}"
         )
-    return Series(s.path, s.t, s.values / norm[:, None])
+    return Series(s.path, s.t, s.values / norm[:, None], s.row)
 
 
 def read_acc(path: str | Path, time_tolerance_s: float = 0.0) -> Series:

@@ -52,7 +52,12 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from qkf.core.kalman import backward_solve_t, cholesky_inplace, forward_solve
+from qkf.core.kalman import (
+    backward_solve_t,
+    cholesky_inplace,
+    forward_solve,
+    symmetrize_inplace,
+)
 from qkf.core.quat import normalize, quat_from_rotvec, quat_mul, rotvec_from_quat
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput
@@ -194,16 +199,6 @@ def _mt(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
             for c in range(a.shape[1]):
                 v += a[i, c] * b[j, c]
             out[i, j] = v
-
-
-@nb.njit(cache=True, fastmath=_FASTMATH)
-def _symmetrize(p: np.ndarray) -> None:
-    n = p.shape[0]
-    for i in range(n):
-        for j in range(i + 1, n):
-            v = 0.5 * (p[i, j] + p[j, i])
-            p[i, j] = v
-            p[j, i] = v
 
 
 @nb.njit(cache=True, fastmath=_FASTMATH)
@@ -602,7 +597,7 @@ def _forward(
             for i in range(m):
                 for j in range(m):
                     smat[i, j] += r_t[i, j]
-            _symmetrize(smat)
+            symmetrize_inplace(smat)
             if not _inverse_spd(smat, sinv):
                 return -1
             _mm(sinv, ut, kt)  # Kᵀ = S⁻¹ Uᵀ
@@ -624,7 +619,7 @@ def _forward(
             _mt(t1, ikh, p)
             _mm(r_t, kt, rk)
             _tm_add(kt, rk, p)
-            _symmetrize(p)
+            symmetrize_inplace(p)
         for i in range(nx):
             xz[k, i] = x[i, 0]
         pplus[k] = p
@@ -678,7 +673,7 @@ def _forward(
         for i in range(nx):
             for j in range(nx):
                 p[i, j] += qbar[i, j]
-        _symmetrize(p)
+        symmetrize_inplace(p)
         fbar_all[k] = fbar
 
         # attitude and sensitivity to k+1 (rot and jac recomputed: reused above)
@@ -768,7 +763,7 @@ def _backward(
             for i in range(nx):
                 for j in range(nx):
                     psm[i, j] = pk[i, j] - psm[i, j]
-            _symmetrize(psm)
+            symmetrize_inplace(psm)
             # M: error state per unit dy; δθ = (S − σ_a X̃_ξ/d) dy, δb = (E_b − e_r X̃_β/d) dy
             mmat[:] = 0.0
             for i in range(3):
@@ -785,7 +780,7 @@ def _backward(
                 si = sa if i < 3 else er
                 for j in range(nx):
                     out[i, j] += si * (sa if j < 3 else er) * psm[i, j]
-            _symmetrize(out)
+            symmetrize_inplace(out)
         if k == 0:
             break
         if meas[k]:  # measurement step backwards
@@ -811,7 +806,7 @@ def _backward(
         _mm(big_m, fk, t1)
         big[:] = 0.0
         _tm_add(fk, t1, big)
-        _symmetrize(big)
+        symmetrize_inplace(big)
 
 
 @nb.njit(parallel=True, cache=True, fastmath=_FASTMATH)
