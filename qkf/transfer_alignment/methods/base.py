@@ -9,8 +9,8 @@ picklable (a module-level function, or a ``functools.partial`` / dataclass of on
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass, field, fields
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -111,6 +111,20 @@ def new_filter(cfg: Config, data: ScenarioData, n_copies: int = 1) -> TransferAl
     kf = TransferAlignmentKF(FilterParams.from_config(cfg), data.n_trials * n_copies)
     kf.initialize(np.repeat(data.ads_q[:, 0], n_copies, axis=0))
     return kf
+
+
+S = TypeVar("S")
+
+
+def section_settings(cls: type[S], cfg: Config, section: str) -> S:
+    """A method's settings dataclass from ``cfg.adaptive.<section>``: the fields the section
+    has, the dataclass's defaults for the others (and for all when the section is absent)."""
+    sec = getattr(cfg.adaptive, section, None)
+    if sec is None:
+        return cls()
+    names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+    values: dict[str, Any] = {n: getattr(sec, n) for n in names if hasattr(sec, n)}
+    return cls(**values)
 
 
 def action_values(cfg: Config) -> np.ndarray:

@@ -42,13 +42,17 @@ Transfer alignment (:func:`run_covariance_matching`):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    section_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -77,14 +81,8 @@ class CovarianceMatchingSettings:
 
     @classmethod
     def from_config(cls, cfg: Config) -> CovarianceMatchingSettings:
-        """The ``adaptive.covariance_matching`` section if the config has one, else defaults."""
-        section = getattr(cfg.adaptive, "covariance_matching", None)
-        if section is None:
-            return cls()
-        values: dict[str, Any] = {
-            f.name: getattr(section, f.name) for f in fields(cls) if hasattr(section, f.name)
-        }
-        return cls(**values)
+        """The ``adaptive.covariance_matching`` section if the config has one, else the defaults."""
+        return section_settings(cls, cfg, "covariance_matching")
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    section_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
 from qkf.transfer_alignment.model import (
     BIAS,
@@ -98,15 +103,8 @@ class FadingParams:
 
     @classmethod
     def from_config(cls, cfg: Config) -> FadingParams:
-        sec = getattr(cfg.adaptive, "fading", None)
-        if sec is None:
-            return cls()
-        d = cls()
-        return cls(
-            forgetting=float(getattr(sec, "forgetting", d.forgetting)),
-            softening=float(getattr(sec, "softening", d.softening)),
-            lambda_max=float(getattr(sec, "lambda_max", d.lambda_max)),
-        )
+        """The ``adaptive.fading`` section if the config has one, else the defaults."""
+        return section_settings(cls, cfg, "fading")
 
 
 # ---- generic strong-tracking algebra (numpy, batched over leading axes) ------------------------

@@ -74,9 +74,19 @@ import numpy as np
 from qkf.core.so3 import skew
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
-from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_arrays
-from qkf.transfer_alignment.methods.mmae import combine, neutral_dead, record_bank_covariance
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    section_settings,
+)
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
+from qkf.transfer_alignment.methods.mmae import (
+    combine,
+    neutral_dead,
+    record_bank_covariance,
+    step_bank,
+)
 from qkf.transfer_alignment.model import CALIB, N_STATES, THETA, calibration_matrix, omega_matrix
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -105,15 +115,8 @@ class ImmParams:
 
     @classmethod
     def from_config(cls, cfg: Config) -> ImmParams:
-        sec = getattr(cfg.adaptive, "imm", None)
-        if sec is None:
-            return cls()
-        d = cls()
-        return cls(
-            p_stay=float(getattr(sec, "p_stay", d.p_stay)),
-            switching=getattr(sec, "switching", d.switching),
-            mix_every=int(getattr(sec, "mix_every", d.mix_every)),
-        )
+        """The ``adaptive.imm`` section if the config has one, else the defaults."""
+        return section_settings(cls, cfg, "imm")
 
 
 # ---- generic IMM algebra (numpy, batched over leading axes) -----------------------------------
@@ -343,17 +346,7 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
         c_bar = mu
         if unit_q is not None and live.any():
             c_bar = mix_bank(bank, mu, trans, kappas, unit_q, live)
-        sl = slice(k0, k1)
-        rec = step_arrays(
-            bank,
-            np.repeat(data.gyro[:, sl], n_act, axis=0),
-            np.repeat(data.ads_q[:, sl], n_act, axis=0),
-            np.repeat(data.ads_rate[:, sl], n_act, axis=0),
-            data.has_meas[sl],
-            kappa_rows,
-            k0,
-            bank_cov,
-        )
+        rec = step_bank(bank, data, k0, k1, kappa_rows, bank_cov)
         ll = rec.loglik.reshape(b, n_act, k1 - k0)
         for k in range(k1 - k0):
             new = update_model_probabilities(c_bar, ll[:, :, k])  # μ_j ∝ Λ_j c̄_j

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import (
     CovarianceRecorder,
@@ -60,6 +61,30 @@ def combine(est: np.ndarray, w: np.ndarray) -> np.ndarray:
         .reshape(b, n, 4)
     )
     return out
+
+
+def step_bank(
+    bank: TransferAlignmentKF,
+    data: ScenarioData,
+    k0: int,
+    k1: int,
+    kappa_rows: np.ndarray,
+    recorder: CovarianceRecorder,
+) -> FilterRecord:
+    """Run a bank of A filters per trial (rows trial × A + member, κ per row) over epochs
+    ``[k0, k1)``: every member sees its trial's data; covariances go to ``recorder``."""
+    n_act = bank.n_trials // data.n_trials
+    sl = slice(k0, k1)
+    return step_arrays(
+        bank,
+        np.repeat(data.gyro[:, sl], n_act, axis=0),
+        np.repeat(data.ads_q[:, sl], n_act, axis=0),
+        np.repeat(data.ads_rate[:, sl], n_act, axis=0),
+        data.has_meas[sl],
+        kappa_rows,
+        k0,
+        recorder,
+    )
 
 
 def neutral_dead(bank_est: np.ndarray) -> np.ndarray:
@@ -107,16 +132,7 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     for k0 in range(0, n, BLOCK):
         k1 = min(n, k0 + BLOCK)
         sl = slice(k0, k1)
-        rec = step_arrays(
-            bank,
-            np.repeat(data.gyro[:, sl], n_act, axis=0),
-            np.repeat(data.ads_q[:, sl], n_act, axis=0),
-            np.repeat(data.ads_rate[:, sl], n_act, axis=0),
-            data.has_meas[sl],
-            kappa_rows,
-            k0,
-            bank_cov,
-        )
+        rec = step_bank(bank, data, k0, k1, kappa_rows, bank_cov)
         ll = rec.loglik.reshape(b, n_act, k1 - k0)
         w_block = np.empty((b, n_act, k1 - k0))
         for k in range(k1 - k0):

@@ -80,15 +80,19 @@ one trial never affects another.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from qkf.transfer_alignment import model
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    section_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -120,13 +124,7 @@ class VbakfSettings:
     @classmethod
     def from_config(cls, cfg: Config) -> VbakfSettings:
         """The ``adaptive.vbakf`` section if the config has one, else the defaults."""
-        section = getattr(cfg.adaptive, "vbakf", None)
-        if section is None:
-            return cls()
-        values: dict[str, Any] = {
-            f.name: getattr(section, f.name) for f in fields(cls) if hasattr(section, f.name)
-        }
-        return cls(**values)
+        return section_settings(cls, cfg, "vbakf")
 
 
 @dataclass(frozen=True)
