@@ -101,3 +101,15 @@ def percentile_interval(samples: np.ndarray, level: float = 0.95) -> tuple[np.nd
     tail = 50.0 * (1.0 - level)
     lo, hi = np.percentile(samples, [tail, 100.0 - tail], axis=0)
     return lo, hi
+
+
+def average_nees_band(
+    dim: int, n_trials: np.ndarray, level: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Two-sided χ² band of ``level`` for a NEES of ``dim`` states averaged over ``n_trials``
+    (any shape, each ≥ 1): ``[χ²_{dim·n}((1 − level)/2), χ²_{dim·n}((1 + level)/2)] / n``."""
+    from scipy import stats as sps
+
+    n = np.asarray(n_trials, dtype=float)
+    a = (1.0 - level) / 2.0
+    return sps.chi2.ppf(a, dim * n) / n, sps.chi2.ppf(1.0 - a, dim * n) / n

@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
-from scipy import stats as sps
 
 from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
 from qkf.core.stats import (
     ErrorAccumulator,
+    average_nees_band,
     bootstrap_rms,
     nees,
     percentile_interval,
@@ -314,9 +314,7 @@ def nees_summary(
     use = window_masks(t, settled_s)["settled"] & (count > 0) & np.isfinite(avg)
     if not use.any():
         return nan
-    dof = 15 * count[use]
-    a = (1.0 - level) / 2.0
-    lo, hi = sps.chi2.ppf(a, dof) / count[use], sps.chi2.ppf(1.0 - a, dof) / count[use]
+    lo, hi = average_nees_band(15, count[use], level)
     inside = (avg[use] >= lo) & (avg[use] <= hi)
     return {"nees_mean": float(np.mean(avg[use]) / 15.0), "nees_in_band": float(np.mean(inside))}
 

@@ -14,6 +14,7 @@ from qkf.core.config import ConfigError, validate
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
+from qkf.core.stats import average_nees_band
 from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
@@ -164,12 +165,8 @@ def nees_png(res: BenchResult) -> bytes | None:
 
 def nees_band(m: MethodResult, level: float) -> tuple[np.ndarray, np.ndarray]:
     """The two-sided χ² band of a trial-averaged NEES of 15 states over ``n`` trials."""
-    from scipy import stats as sps
-
     assert m.nees_trials is not None
-    n = np.maximum(m.nees_trials, 1)
-    a = (1.0 - level) / 2.0
-    return sps.chi2.ppf(a, 15 * n) / n, sps.chi2.ppf(1.0 - a, 15 * n) / n
+    return average_nees_band(15, np.maximum(m.nees_trials, 1), level)
 
 
 def band_rows(res: BenchResult) -> list[list[object]]:

@@ -49,10 +49,6 @@ class CovarianceRecorder:
         self._slot = {int(k): j for j, k in enumerate(self.epochs)}
         self.cov = np.full((n_trials, self.epochs.size, N_STATES, N_STATES), np.nan)
 
-    def wants(self, k: int) -> bool:
-        """Whether epoch ``k`` is a sampled epoch."""
-        return int(k) in self._slot
-
     def take(self, k: int, cov: np.ndarray) -> None:
         """Store the covariance (B, 15, 15) of epoch ``k`` if it is sampled."""
         j = self._slot.get(int(k))
