@@ -3,7 +3,8 @@
 ::
 
     agent: ppo                 # a name of agents.algorithms.ALGORITHMS
-    env: qkf/TransferAlignment-v0  # or qkf/RedundantGyroCalibration-v0 (a gyros scenario)
+    env: qkf/TransferAlignment-v0  # or -v1 (order-one observation), or
+                                   # qkf/RedundantGyroCalibration-v0 (a gyros scenario)
     scenario: thermal_snap     # preset name or config path
     overrides: []              # --set style overrides of the scenario
     action_type: discrete      # must suit the agent (sac: continuous)
@@ -16,6 +17,7 @@
     eval: {episodes: 8, seed: 100000, every_steps: 20000}
     hyperparams: {}            # keyword arguments of the SB3 algorithm
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
+    reward_scale: 1.0          # SB3: the learner sees reward × this (evaluations do not)
 
 :func:`load_train_config` checks everything a training run will use before any work, and
 reports every problem at once, one line each (``FILE: dotted.field: message``): the schema,
@@ -35,8 +37,8 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 
 from agents.algorithms import ALGORITHMS, algorithm_class
-from envs import ENV_ID, GYRO_ENV_ID
-from envs.episodes import OBS_SIZE
+from envs import ENV_ID, ENV_ID_V1, GYRO_ENV_ID, TA_ENV_OBSERVATIONS
+from envs.observations import OBSERVATIONS
 from envs.redundant_gyro import GYRO_REWARDS
 from envs.rewards import REWARDS
 from qkf.core import presets
@@ -66,7 +68,11 @@ class EvalConfig(StrictModel):
     every_steps: Annotated[int, Field(ge=1)] = 20_000
 
 
-ENV_REWARDS: dict[str, Registry[Any]] = {ENV_ID: REWARDS, GYRO_ENV_ID: GYRO_REWARDS}
+ENV_REWARDS: dict[str, Registry[Any]] = {
+    ENV_ID: REWARDS,
+    ENV_ID_V1: REWARDS,
+    GYRO_ENV_ID: GYRO_REWARDS,
+}
 """The environments ``qkf train`` can train on, with their reward registries."""
 
 
@@ -86,6 +92,7 @@ class TrainConfig(StrictModel):
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     tabular: dict[str, Any] = Field(default_factory=dict)
     torch_threads: Annotated[int, Field(ge=1)] = 1  # 2-core machines: the env wants the other
+    reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # SB3 agents learn from reward × this
 
     @field_validator("agent")
     @classmethod
@@ -144,7 +151,7 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
             problems.append(
                 "hyperparams: the tabular agent takes no SB3 hyperparameters (use tabular:)"
             )
-        problems += _tabular_problems(cfg.tabular)
+        problems += _tabular_problems(cfg.tabular, _observation_size(cfg.env))
     else:
         if cfg.tabular:
             problems.append(f"tabular: only the tabular agent reads it, not {cfg.agent}")
@@ -226,7 +233,16 @@ def _hyperparam_problems(cls: Any, hyperparams: dict[str, Any]) -> list[str]:
     return problems
 
 
-def _tabular_problems(tabular: dict[str, Any]) -> list[str]:
+def _observation_size(env: str) -> int:
+    """Length of the observation of a training environment."""
+    if env in TA_ENV_OBSERVATIONS:
+        return OBSERVATIONS[TA_ENV_OBSERVATIONS[env]].size
+    from envs.redundant_gyro import OBS_SIZE as GYRO_OBS_SIZE
+
+    return GYRO_OBS_SIZE
+
+
+def _tabular_problems(tabular: dict[str, Any], obs_size: int) -> list[str]:
     from agents.tabular import TabularQAgent
 
     known = [
@@ -250,7 +266,7 @@ def _tabular_problems(tabular: dict[str, Any]) -> list[str]:
         if field.split(".")[0] in known:
             return [f"tabular.{msg}"]
         return [f"tabular: {msg}"]
-    outside = [d for d in agent.bins if d >= OBS_SIZE]
+    outside = [d for d in agent.bins if d >= obs_size]
     if outside:
-        return [f"tabular.bins: {outside[0]} is not an observation index (0 to {OBS_SIZE - 1})"]
+        return [f"tabular.bins: {outside[0]} is not an observation index (0 to {obs_size - 1})"]
     return []

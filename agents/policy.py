@@ -21,6 +21,7 @@ import numpy as np
 
 from agents.algorithms import algorithm_class
 from agents.config import load_train_config
+from envs import TA_ENV_OBSERVATIONS
 from envs.episodes import ActionMap, BatchedEpisodes
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config
@@ -29,7 +30,7 @@ from qkf.transfer_alignment.scenario import ScenarioData
 
 
 class Policy:
-    """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, 9))``."""
+    """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, size))``."""
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
@@ -60,7 +61,14 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
     policy = Policy(path)
     actions = ActionMap(np.asarray(cfg.adaptive.actions.values()), policy.cfg.action_type)
-    core = BatchedEpisodes(cfg, data.n_trials, "likelihood", policy.cfg.period_s)
+    observation = TA_ENV_OBSERVATIONS.get(policy.cfg.env)
+    if observation is None:
+        raise ConfigError(
+            f"{path}: trained on {policy.cfg.env}, not a transfer-alignment environment"
+        )
+    core = BatchedEpisodes(
+        cfg, data.n_trials, "likelihood", policy.cfg.period_s, observation=observation
+    )
     obs = core.load(data)
     est = np.full((data.n_trials, data.n_epochs, 16), np.nan)
     kappa_log = []

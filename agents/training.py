@@ -50,8 +50,10 @@ import inspect
 import io
 import json
 import math
+import os
 import re
 import shutil
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,13 +61,13 @@ from typing import Any
 
 import numpy as np
 import yaml
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvWrapper
 
 from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.common.vec_env import TransferAlignmentVecEnv
 from agents.config import HEADER, TrainConfig
 from agents.tabular import TabularQAgent, train_tabular
-from envs import ENV_ID
+from envs import TA_ENV_OBSERVATIONS
 from qkf.core.config import ConfigError
 from qkf.core.io import atomic_write_bytes, atomic_write_text
 
@@ -83,7 +85,7 @@ _CKPT = {
 
 
 def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
-    if cfg.env != ENV_ID:  # any other registered environment: SB3's DummyVecEnv over gym.make
+    if cfg.env not in TA_ENV_OBSERVATIONS:  # another environment: DummyVecEnv over gym.make
         return _gym_vec_env(cfg, n_envs, seed)
     env = TransferAlignmentVecEnv(
         n_envs,
@@ -92,6 +94,7 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
         cfg.reward,
         overrides=list(cfg.overrides),
         period_s=cfg.period_s,
+        observation=TA_ENV_OBSERVATIONS[cfg.env],
     )
     env.seed(seed)
     return env
@@ -111,6 +114,23 @@ def _gym_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
     env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
     env.seed(seed)
     return env
+
+
+class ScaledReward(VecEnvWrapper):
+    """Rewards times a constant for the learner (``reward_scale``); the monitor beneath and the
+    evaluations see the reward as defined. A fixed factor keeps training deterministic and
+    resumable, unlike running reward normalisation."""
+
+    def __init__(self, venv: VecEnv, scale: float) -> None:
+        super().__init__(venv)
+        self.scale = scale
+
+    def reset(self) -> Any:
+        return self.venv.reset()
+
+    def step_wait(self) -> Any:
+        obs, reward, done, infos = self.venv.step_wait()
+        return obs, reward * self.scale, done, infos
 
 
 def _monitored(env: VecEnv) -> Any:
@@ -587,6 +607,8 @@ def _run_sb3(plan: TrainPlan, progress: bool) -> Path:
         ckpt_steps = int(_CKPT["sb3"].match(plan.checkpoint.name).group(1))  # type: ignore[union-attr]
     seed = cfg.seed if plan.checkpoint is None else _resume_seed(cfg.seed, ckpt_steps)
     env = _monitored(make_vec_env(cfg, cfg.n_envs, seed))
+    if cfg.reward_scale != 1.0:
+        env = ScaledReward(env, cfg.reward_scale)
     if plan.checkpoint is not None:
         model = algo.load(plan.checkpoint, env=env, device="cpu", tensorboard_log=str(out / "tb"))
         model.set_random_seed(seed)  # torch, numpy and the environments: a reproducible resume
@@ -650,6 +672,7 @@ def _run_sb3(plan: TrainPlan, progress: bool) -> Path:
             records.write_info(num_timesteps=int(self.num_timesteps))
 
     remaining = max(0, cfg.total_steps - int(model.num_timesteps))
+    started = time.perf_counter()
     model.learn(
         remaining,
         callback=Records(),
@@ -657,7 +680,13 @@ def _run_sb3(plan: TrainPlan, progress: bool) -> Path:
         reset_num_timesteps=plan.checkpoint is None,
     )
     save(out / "model.zip")
-    records.write_info(num_timesteps=int(model.num_timesteps), complete=True, model="model.zip")
+    records.write_info(
+        num_timesteps=int(model.num_timesteps),
+        complete=True,
+        model="model.zip",
+        wall_s=round(time.perf_counter() - started, 1),  # this session's, on os.cpu_count() cores
+        cpu_count=os.cpu_count(),
+    )
     return out / "model.zip"
 
 

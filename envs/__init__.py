@@ -3,6 +3,8 @@
 ``qkf/TransferAlignment-v0`` wraps the transfer-alignment filter: the agent picks the
 process-noise factor κ every decision period. The episode length follows the config (the
 environment truncates itself), so no ``max_episode_steps`` is registered.
+``qkf/TransferAlignment-v1`` is the same task with the order-one observation ``v1``
+(:mod:`envs.observations`); v0 stays as it was, for the policies trained on it.
 ``qkf/RedundantGyroCalibration-v0`` asks the same of the redundant-gyro calibration UKF
 (docs/redundant_gyros.md).
 """
@@ -10,20 +12,26 @@ environment truncates itself), so no ``max_episode_steps`` is registered.
 from gymnasium.envs.registration import register, registry
 
 from envs.episodes import ActionMap, BatchedEpisodes, EpisodeDriver
+from envs.observations import OBSERVATIONS, Observation
 from envs.redundant_gyro import GYRO_REWARDS, RedundantGyroCalibrationEnv
 from envs.rewards import REWARDS, PeriodOutcome, Reward
 from envs.transfer_alignment import TransferAlignmentEnv
 from envs.vector import TransferAlignmentVectorEnv
 
 ENV_ID = "qkf/TransferAlignment-v0"
+ENV_ID_V1 = "qkf/TransferAlignment-v1"
+TA_ENV_OBSERVATIONS = {ENV_ID: "v0", ENV_ID_V1: "v1"}
+"""The transfer-alignment environment ids and the observation each one uses."""
 
-if ENV_ID not in registry:
-    register(
-        id=ENV_ID,
-        entry_point="envs.transfer_alignment:TransferAlignmentEnv",
-        vector_entry_point="envs.vector:TransferAlignmentVectorEnv",
-        max_episode_steps=None,
-    )
+for _id, _obs in TA_ENV_OBSERVATIONS.items():
+    if _id not in registry:
+        register(
+            id=_id,
+            entry_point="envs.transfer_alignment:TransferAlignmentEnv",
+            vector_entry_point="envs.vector:TransferAlignmentVectorEnv",
+            max_episode_steps=None,
+            kwargs={"observation": _obs},
+        )
 
 GYRO_ENV_ID = "qkf/RedundantGyroCalibration-v0"
 
@@ -36,12 +44,16 @@ if GYRO_ENV_ID not in registry:
 
 __all__ = [
     "ENV_ID",
+    "ENV_ID_V1",
     "GYRO_ENV_ID",
     "GYRO_REWARDS",
+    "OBSERVATIONS",
     "REWARDS",
+    "TA_ENV_OBSERVATIONS",
     "ActionMap",
     "BatchedEpisodes",
     "EpisodeDriver",
+    "Observation",
     "PeriodOutcome",
     "RedundantGyroCalibrationEnv",
     "Reward",

@@ -19,18 +19,17 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
+from envs.observations import OBS_LIMIT, OBSERVATIONS, PeriodView
 from envs.rewards import REWARDS, PeriodOutcome
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.crlb import crlb
-from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
+from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import decision_steps
-from qkf.transfer_alignment.metrics import state_errors
+from qkf.transfer_alignment.metrics import state_errors, window_masks
 from qkf.transfer_alignment.params import FilterParams, n_epochs
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
-OBS_SIZE = 9
-OBS_LIMIT = 100.0  # observations are clipped to ±this
 DIVERGENCE_REWARD = -1e3
 DEFAULT_PERIOD_S = 10.0
 """Decision period of the environments, s (one step = this much filtering)."""
@@ -38,7 +37,7 @@ DEFAULT_PERIOD_S = 10.0
 
 @dataclass
 class StepOutput:
-    obs: np.ndarray  # (N, 9) float32
+    obs: np.ndarray  # (N, size of the observation) float32
     reward: np.ndarray  # (N,)
     terminated: np.ndarray  # (N,) bool
     truncated: np.ndarray  # (N,) bool
@@ -51,15 +50,30 @@ class StepOutput:
 
 
 class BatchedEpisodes:
-    """N synchronous episodes; ``reset(i, seed)`` starts episode i anew from ``seed``."""
+    """N synchronous episodes; ``reset(i, seed)`` starts episode i anew from ``seed``.
+
+    Besides the agent's filter it runs, only where asked for: a κ = 1 shadow restarted from the
+    agent's state every period (the likelihood gain of the ``likelihood`` reward and the v0
+    observation) and a free-running reference filter at the nominal κ (the ``*_gain`` rewards).
+    """
 
     def __init__(
-        self, cfg: Config, n: int, reward: str, period_s: float = DEFAULT_PERIOD_S
+        self,
+        cfg: Config,
+        n: int,
+        reward: str,
+        period_s: float = DEFAULT_PERIOD_S,
+        observation: str = "v0",
     ) -> None:
         self.cfg = cfg
         self.n = n
         self.reward_kind = reward
         self.reward = REWARDS[reward]
+        self.observation_kind = OBSERVATIONS[observation]
+        self.observation = self.observation_kind.factory(n, period_s)
+        self.needs_likelihood = (
+            self.reward.needs_likelihood or self.observation_kind.needs_likelihood
+        )
         self.params = FilterParams.from_config(cfg)
         self.kappas = np.asarray(cfg.adaptive.actions.values())
         self.period = decision_steps(period_s, cfg.scenario.dt_s)
@@ -78,8 +92,13 @@ class BatchedEpisodes:
         self.t = np.arange(ne) * cfg.scenario.dt_s
         self.k = np.zeros(n, dtype=np.int64)
         self.kappa_pos = np.zeros(n)
+        self.settled = window_masks(self.t, cfg.run.settled_s)["settled"]
+        self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
         self.kf = TransferAlignmentKF(self.params, n)
         self.nominal = TransferAlignmentKF(self.params, n)
+        self.reference = (
+            TransferAlignmentKF(self.params, n) if self.reward.needs_reference else None
+        )
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         """Draw episode ``i`` from ``seed``; returns its first observation."""
@@ -90,6 +109,8 @@ class BatchedEpisodes:
         one = TransferAlignmentKF(self.params, 1)
         one.initialize(d.ads_q[:, 0])
         self.kf.load_trial(i, one)
+        if self.reference is not None:
+            self.reference.load_trial(i, one)
         return self._restart(np.array([i]))[0]
 
     def load(self, data: ScenarioData) -> np.ndarray:
@@ -102,6 +123,8 @@ class BatchedEpisodes:
         self.bias[:], self.calib[:] = data.bias, data.calib
         self.has_meas[:] = data.has_meas
         self.kf.initialize(data.ads_q[:, 0])
+        if self.reference is not None:
+            self.reference.initialize(data.ads_q[:, 0])
         return self._restart(np.arange(self.n))
 
     def _restart(self, rows: np.ndarray) -> np.ndarray:
@@ -109,9 +132,7 @@ class BatchedEpisodes:
         (zeros but for the κ in use)."""
         self.k[rows] = 0
         self.kappa_pos[rows] = self._start_pos
-        obs = np.zeros((rows.size, OBS_SIZE), dtype=np.float32)
-        obs[:, 8] = self._start_pos
-        return obs
+        return self.observation.reset(rows, self._start_pos)
 
     def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:
         idx = np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_epochs - 1)
@@ -123,82 +144,75 @@ class BatchedEpisodes:
         # Episodes are synchronous in length; a period that would run past the end is cut by
         # masking its extra epochs out as measurement-free repeats of the last one.
         valid = (k0[:, None] + np.arange(self.period)[None, :]) < self.n_epochs
-        self.nominal.copy_state_from(self.kf)
         gyro, ads_q, ads_rate = (
             self._window(a, k0) for a in (self.gyro, self.ads_q, self.ads_rate)
         )
         meas = self._window(self.has_meas, k0) & valid
+        if self.needs_likelihood:
+            self.nominal.copy_state_from(self.kf)
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
-        rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
-        err = state_errors(
-            rec.est,
+        truth = (
             self._window(self.q_true, k0),
             self._window(self.bias, k0),
             self._window(self.calib, k0),
         )
+        err = state_errors(rec.est, *truth)
+        ref_err = None
+        if self.reference is not None:
+            ref = self.reference.step(gyro, ads_q, ads_rate, meas, self.nominal_kappa)
+            ref_err = state_errors(ref.est, *truth)
         last = np.maximum(valid.sum(axis=1) - 1, 0)
         rows = np.arange(self.n)
         diverged = self.kf.diverged.copy()
         steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has no valid epoch
-        ll = np.where(valid, rec.loglik, 0.0).sum(axis=1)
-        ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)
-        with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
-            dll = ll - ll_nom
-        bound = self.bound[np.minimum(k0[:, None] + np.arange(self.period), self.n_epochs - 1)]
-        outcome = PeriodOutcome(rec, dll, err, bound, valid, steps, self.cfg.scenario.dt_s)
+        dll = None
+        if self.needs_likelihood:
+            rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
+            ll = np.where(valid, rec.loglik, 0.0).sum(axis=1)
+            ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)
+            with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
+                dll = ll - ll_nom
+        epoch = np.minimum(k0[:, None] + np.arange(self.period), self.n_epochs - 1)
+        outcome = PeriodOutcome(
+            record=rec,
+            loglik_gain=dll,
+            errors=err,
+            bound=self.bound[epoch],
+            valid=valid,
+            steps=steps,
+            dt=self.cfg.scenario.dt_s,
+            reference_errors=ref_err,
+            settled=self.settled[epoch] & valid,
+            settled_epochs=max(int(self.settled.sum()), 1),
+        )
         reward = np.asarray(self.reward.fn(outcome), dtype=float)
         reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)
-        obs = self._observe(rec, valid, last, dll, steps)
+        view = PeriodView(
+            record=rec,
+            valid=valid,
+            last=last,
+            steps=steps,
+            loglik_gain=dll,
+            elapsed=self.k / self.n_epochs,
+            kappa_pos=self.kappa_pos,
+            p0_sigma=self.params.p0_sigma,
+            n_meas=self.params.n_meas,
+            dt=self.cfg.scenario.dt_s,
+        )
         return StepOutput(
-            obs=obs,
+            obs=self.observation(view),
             reward=reward,
             terminated=diverged,
             truncated=~diverged & (self.k >= self.n_epochs),
             kappa=np.asarray(kappa, dtype=float),
             errors=err[rows, last] / DISPLAY_UNIT,
-            crlb=bound[rows, last] / DISPLAY_UNIT,
+            crlb=outcome.bound[rows, last] / DISPLAY_UNIT,
             t_s=self.t[np.minimum(k0 + last, self.n_epochs - 1)],
             est=rec.est,
             valid=valid,
         )
-
-    def _observe(
-        self,
-        rec: FilterRecord,
-        valid: np.ndarray,
-        last: np.ndarray,
-        dll: np.ndarray,
-        steps: np.ndarray,
-    ) -> np.ndarray:
-        rows = np.arange(self.n)
-        p0 = self.params.p0_sigma
-        log_ratio = 0.5 * np.log10(rec.var[rows, last] / p0**2)
-        nis_att = _masked_mean(rec.nis_att, valid) / 3.0
-        nis_rate = _masked_mean(rec.nis_rate, valid) / 3.0
-        obs = np.stack(
-            [
-                log_ratio[:, 0:3].mean(axis=1),
-                log_ratio[:, 3:6].mean(axis=1),
-                log_ratio[:, 6:15].mean(axis=1),
-                nis_att,
-                nis_rate,
-                dll / (steps * self.params.n_meas),
-                self.k / self.n_epochs,
-                np.linalg.norm(rec.rate[rows, last], axis=1) / (np.pi / 180.0),
-                self.kappa_pos,
-            ],
-            axis=1,
-        )
-        obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
-        return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
-
-
-def _masked_mean(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Row means over finite, valid entries; 0 for a row without any (no data, no rate rows)."""
-    ok = valid & np.isfinite(x)
-    return np.where(ok, x, 0.0).sum(axis=1) / np.maximum(ok.sum(axis=1), 1)
 
 
 class ActionMap:
@@ -248,7 +262,8 @@ class EpisodeDriver:
     and one generator per episode (each episode's data is drawn from its own generator).
 
     ``scenario``: a preset name, a config path or a :class:`Config`; ``reward``: a name of
-    :data:`envs.rewards.REWARDS`; ``period_s``: the decision period, s.
+    :data:`envs.rewards.REWARDS`; ``period_s``: the decision period, s; ``observation``: a name
+    of :data:`envs.observations.OBSERVATIONS` (the environment version).
     """
 
     def __init__(
@@ -259,6 +274,7 @@ class EpisodeDriver:
         reward: str,
         overrides: list[str] | None,
         period_s: float = DEFAULT_PERIOD_S,
+        observation: str = "v0",
     ) -> None:
         if n < 1:
             raise ValueError("num_envs must be at least 1")
@@ -266,12 +282,15 @@ class EpisodeDriver:
             raise ValueError(f"unknown reward {reward!r}; known: {', '.join(REWARDS.names())}")
         if not (np.isfinite(period_s) and period_s > 0.0):
             raise ValueError(f"period_s must be positive, got {period_s!r}")
+        if observation not in OBSERVATIONS:
+            known = ", ".join(OBSERVATIONS.names())
+            raise ValueError(f"unknown observation {observation!r}; known: {known}")
         self.cfg = scenario if isinstance(scenario, Config) else load_config(scenario, overrides)
         self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
         self.observation_space = spaces.Box(
-            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
+            -OBS_LIMIT, OBS_LIMIT, shape=(OBSERVATIONS[observation].size,), dtype=np.float32
         )
-        self.core = BatchedEpisodes(self.cfg, n, reward, period_s)
+        self.core = BatchedEpisodes(self.cfg, n, reward, period_s, observation)
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
 
     @property

@@ -19,7 +19,12 @@ Built in:
 * ``likelihood`` (default, no truth): ``(ℓ_agent − ℓ_nominal) / T_c``, the innovation
   log-likelihood gain over a κ = 1 filter run from the same state, per second — the QKF reward;
 * ``oracle`` (truth): minus the period's mean of ``‖Δp‖ / ‖σ_CRLB,p‖``;
-* ``nees`` (truth): minus ``|mean NEES / 15 − 1|`` over the period.
+* ``nees`` (truth): minus ``|mean NEES / 15 − 1|`` over the period;
+* ``misalignment_gain`` / ``calibration_gain`` (truth): the reduction of the squared error of
+  the misalignment (or all calibration) terms over the settled window (``run.settled_s`` on),
+  against a free-running filter at the nominal κ (the ``kf`` method) on the same data, scaled so
+  that an episode's return is ``MSE_kf − MSE_agent`` in display units² — the benchmark's
+  settled metric, squared, as a difference to ``kf``.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import numpy as np
 from qkf.core.registry import Registry
 from qkf.core.stats import nees
 from qkf.transfer_alignment.filter import FilterRecord
+from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 
 @dataclass(frozen=True)
@@ -39,12 +45,15 @@ class PeriodOutcome:
     """One decision period of N episodes (SI units; ``P`` = epochs in the period)."""
 
     record: FilterRecord  # the agent's filter over the period (covariance if ``needs_cov``)
-    loglik_gain: np.ndarray  # (N,) ℓ_agent − ℓ_nominal summed over the valid epochs
+    loglik_gain: np.ndarray | None  # (N,) ℓ_agent − ℓ_nominal over the valid epochs, if needed
     errors: np.ndarray  # (N, P, 15) true estimation errors
     bound: np.ndarray  # (N, P, 15) CRLB 1-σ
     valid: np.ndarray  # (N, P) bool: epochs inside the episode
     steps: np.ndarray  # (N,) valid epochs (at least 1)
     dt: float  # s
+    reference_errors: np.ndarray | None = None  # (N, P, 15) of the reference filter, if needed
+    settled: np.ndarray | None = None  # (N, P) bool: valid epochs of the settled window
+    settled_epochs: int = 1  # epochs of the run's settled window
 
     def period_mean(self, x: np.ndarray) -> np.ndarray:
         """Mean over the valid epochs of a per-epoch quantity (N, P) → (N,)."""
@@ -59,6 +68,8 @@ class Reward:
     description: str
     uses_truth: bool = False  # simulation only: never available in flight
     needs_cov: bool = False  # the full covariance is recorded over the period (slower)
+    needs_likelihood: bool = False  # the κ = 1 shadow filter runs for ``loglik_gain``
+    needs_reference: bool = False  # a free-running nominal-κ filter runs for ``reference_errors``
 
 
 REWARDS: Registry[Reward] = Registry("reward", group="qkf.rewards")
@@ -67,6 +78,7 @@ REWARDS: Registry[Reward] = Registry("reward", group="qkf.rewards")
 
 def likelihood_reward(o: PeriodOutcome) -> np.ndarray:
     """``(ℓ_agent − ℓ_nominal) / (steps · Δt)``, per second."""
+    assert o.loglik_gain is not None
     return o.loglik_gain / (o.steps * o.dt)
 
 
@@ -85,12 +97,51 @@ def nees_reward(o: PeriodOutcome) -> np.ndarray:
     return -np.abs(np.sum(np.where(o.valid, ne, 0.0), axis=1) / o.steps / 15.0 - 1.0)
 
 
+def settled_gain(states: slice) -> Callable[[PeriodOutcome], np.ndarray]:
+    """The reward that sums, over an episode, to the reduction of the settled-window mean
+    square error of ``states`` (display units², mean over the states) against the reference
+    filter: per period ``Σ_settled (‖e_ref‖² − ‖e‖²) / (n_states · N_settled)``."""
+    n_states = len(range(15)[states])
+
+    def gain(o: PeriodOutcome) -> np.ndarray:
+        assert o.reference_errors is not None and o.settled is not None
+        e = o.errors[..., states] / DISPLAY_UNIT[states]
+        e_ref = o.reference_errors[..., states] / DISPLAY_UNIT[states]
+        diff = np.sum(e_ref**2, axis=-1) - np.sum(e**2, axis=-1)
+        return np.sum(np.where(o.settled, diff, 0.0), axis=1) / (n_states * o.settled_epochs)
+
+    return gain
+
+
 REWARDS.register(
-    "likelihood", Reward(likelihood_reward, "innovation log-likelihood gain over κ = 1, per second")
+    "likelihood",
+    Reward(
+        likelihood_reward,
+        "innovation log-likelihood gain over κ = 1, per second",
+        needs_likelihood=True,
+    ),
 )
 REWARDS.register(
     "oracle", Reward(oracle_reward, "minus calibration error over the CRLB", uses_truth=True)
 )
 REWARDS.register(
     "nees", Reward(nees_reward, "minus |NEES/15 − 1|", uses_truth=True, needs_cov=True)
+)
+REWARDS.register(
+    "misalignment_gain",
+    Reward(
+        settled_gain(slice(9, 15)),
+        "settled misalignment mean-square reduction against the nominal-κ filter, µrad²",
+        uses_truth=True,
+        needs_reference=True,
+    ),
+)
+REWARDS.register(
+    "calibration_gain",
+    Reward(
+        settled_gain(slice(6, 15)),
+        "settled calibration (ppm, µrad) mean-square reduction against the nominal-κ filter",
+        uses_truth=True,
+        needs_reference=True,
+    ),
 )

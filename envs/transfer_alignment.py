@@ -69,11 +69,14 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         reward: str = "likelihood",
         overrides: list[str] | None = None,
         period_s: float = DEFAULT_PERIOD_S,
+        observation: str = "v0",
         render_mode: str | None = None,
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
-        self._driver = EpisodeDriver(1, scenario, action_type, reward, overrides, period_s)
+        self._driver = EpisodeDriver(
+            1, scenario, action_type, reward, overrides, period_s, observation
+        )
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions

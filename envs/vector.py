@@ -32,13 +32,16 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         reward: str = "likelihood",
         overrides: list[str] | None = None,
         period_s: float = DEFAULT_PERIOD_S,
+        observation: str = "v0",
         render_mode: str | None = None,
         **_: Any,
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
         self.num_envs = num_envs
-        self._driver = EpisodeDriver(num_envs, scenario, action_type, reward, overrides, period_s)
+        self._driver = EpisodeDriver(
+            num_envs, scenario, action_type, reward, overrides, period_s, observation
+        )
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
         self.single_action_space = self._driver.actions.space

@@ -371,6 +371,111 @@ def _claims(study: str, out_dir: Path, quiet: bool) -> None:
     out.print(f"wrote {out_dir}/ (claims.csv, claims.md, one benchmark folder per config)")
 
 
+zoo_app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="The zoo of trained policies (agents/zoo/<name>/): train, evaluate, promote, list.",
+)
+
+
+def _entry(name: str):  # type: ignore[no-untyped-def]
+    from agents.zoo import load_entry
+
+    try:
+        return load_entry(name)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+
+
+WorkOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--work", help="Work folder (checkpoints, logs, bench outputs): results/zoo/NAME."
+    ),
+]
+
+
+@zoo_app.command("list")
+def zoo_list_cmd() -> None:
+    """The zoo's entries, with their shipped seed and description."""
+    from agents.zoo import list_entries
+
+    for e in list_entries():
+        chosen = e.selected_seed()
+        shipped = f"seed {chosen}" if chosen is not None else "not trained"
+        out.print(f"{e.name}: {shipped}; {e.spec.description}", soft_wrap=True, markup=False)
+
+
+@zoo_app.command("train")
+def zoo_train_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+    seeds: Annotated[
+        str | None, typer.Option(help="Comma-separated training seeds (default: zoo.yaml's).")
+    ] = None,
+    work: WorkOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Train every seed of the entry (a finished run is reused) and ship the best one."""
+    from agents.zoo.commands import train_entry
+
+    entry = _entry(name)
+    try:
+        chosen_seeds = [int(s) for s in seeds.split(",")] if seeds else None
+    except ValueError:
+        raise fail(f"--seeds: {seeds!r} is not a comma-separated list of integers") from None
+    if chosen_seeds is not None and any(s < 0 for s in chosen_seeds):
+        raise fail("--seeds: seeds must be non-negative")
+    folder = work or Path("results/zoo") / entry.name
+    try:
+        chosen = train_entry(entry, folder, chosen_seeds, not quiet, lambda m: out.print(m))
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    out.print(f"shipped seed {chosen}; wrote {entry.folder}/ (card.md)")
+
+
+@zoo_app.command("evaluate")
+def zoo_evaluate_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+    trials: Annotated[
+        int | None, typer.Option(help="Trials of every judging case (default: zoo.yaml's).")
+    ] = None,
+    work: WorkOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Judge every trained seed against the baselines and the oracle on held-out benchmark
+    seeds; writes evaluation/ and card.md of the entry."""
+    from agents.zoo.commands import evaluate_entry
+
+    entry = _entry(name)
+    if trials is not None and not 2 <= trials <= MAX_TRIALS:
+        raise fail(f"--trials must be between 2 and {MAX_TRIALS:,}")
+    folder = work or Path("results/zoo") / entry.name
+    try:
+        path = evaluate_entry(entry, folder, trials, not quiet, lambda m: out.print(m))
+    except (ConfigError, FileNotFoundError) as exc:
+        raise fail(str(exc)) from None
+    text = (entry.folder / "card.md").read_text()
+    out.print(text, soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {path}")
+
+
+@zoo_app.command("promote")
+def zoo_promote_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+) -> None:
+    """Copy the entry's shipped policy and card to agents/zoo/best/."""
+    from agents.zoo.commands import promote
+
+    try:
+        best = promote(_entry(name))
+    except FileNotFoundError as exc:
+        raise fail(str(exc)) from None
+    out.print(f"wrote {best}/")
+
+
+app.add_typer(zoo_app, name="zoo")
+
+
 # The other estimation problems' commands (each package's cli module imports only typer and
 # qkf.core at import time): a command group, and two top-level commands.
 app.add_typer(gyros_app, name="gyros", help="Redundant skewed gyros: FDI and UKF calibration.")

@@ -31,8 +31,11 @@ class TransferAlignmentVecEnv(VecEnv):
         reward: str = "likelihood",
         overrides: list[str] | None = None,
         period_s: float = DEFAULT_PERIOD_S,
+        observation: str = "v0",
     ) -> None:
-        self._driver = EpisodeDriver(num_envs, scenario, action_type, reward, overrides, period_s)
+        self._driver = EpisodeDriver(
+            num_envs, scenario, action_type, reward, overrides, period_s, observation
+        )
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
         self.render_mode = None

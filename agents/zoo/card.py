@@ -1,0 +1,125 @@
+"""The model card of a zoo entry (``card.md``), written from the entry's own files: the spec,
+the training config, each seed's records and the judging table. Rewritten by every
+``qkf zoo train`` and ``qkf zoo evaluate``, so it never disagrees with the files beside it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from agents.zoo.entry import ZooEntry
+from agents.zoo.summary import read_summary
+from envs import TA_ENV_OBSERVATIONS
+from envs.rewards import REWARDS
+from qkf.core.io import atomic_write_text
+
+
+def _training_lines(entry: ZooEntry) -> list[str]:
+    cfg = entry.train_cfg
+    reward = REWARDS[cfg.reward] if cfg.reward in REWARDS else None
+    obs = TA_ENV_OBSERVATIONS.get(cfg.env, "")
+    lines = [
+        f"# {entry.name}",
+        "",
+        entry.spec.description,
+        "",
+        "## Training",
+        "",
+        f"- Command: `qkf zoo train {entry.name}` (each seed: `qkf train {entry.spec.train} "
+        f"--seed S --out results/zoo/{entry.name}/seed_S`); deterministic by seed.",
+        f"- Agent: {cfg.agent}, {cfg.action_type} κ actions, environment `{cfg.env}`"
+        + (f" (observation `{obs}`)" if obs else "")
+        + f", decision period {cfg.period_s:g} s, {cfg.n_envs} parallel episodes.",
+        f"- Scenario: `{cfg.scenario}`; training episodes from environment seeds "
+        f"`seed … seed + {cfg.n_envs - 1}` and their generators; periodic evaluation on "
+        f"environment seed {cfg.eval.seed} ({cfg.eval.episodes} episodes).",
+        f"- Reward: `{cfg.reward}`"
+        + (f": {reward.description}" if reward else "")
+        + (
+            " (uses the truth: simulation only; the observation never does)"
+            if reward and reward.uses_truth
+            else ""
+        )
+        + (f"; the learner sees it × {cfg.reward_scale:g}" if cfg.reward_scale != 1.0 else "")
+        + ".",
+        f"- Steps: {cfg.total_steps:,} per seed; hyperparameters: `{json.dumps(cfg.hyperparams)}`.",
+        "",
+        "| training seed | wall time [s] | cores | last evaluation return (env seed "
+        f"{cfg.eval.seed}) | shipped |",
+        "|---|---|---|---|---|",
+    ]
+    chosen = entry.selected_seed()
+    for s in entry.spec.seeds:
+        info_file = entry.seed_dir(s) / "training.json"
+        info = json.loads(info_file.read_text()) if info_file.is_file() else {}
+        score = entry.validation_score(s)
+        lines.append(
+            f"| {s} | {info.get('wall_s', '–')} | {info.get('cpu_count', '–')} | "
+            f"{score:.4g} | {'yes' if s == chosen else ''} |"
+        )
+    lines += [
+        "",
+        "The shipped `model.*` is the seed with the best last evaluation on the environment "
+        "evaluation seed, never on the judging seeds below.",
+        "",
+    ]
+    return lines
+
+
+def _fmt(r: dict[str, str]) -> str:
+    value, lo, hi = (float(r[k]) for k in ("value", "lo", "hi"))
+    return f"{value:.4g} [{lo:.4g}, {hi:.4g}]"
+
+
+def _evaluation_lines(entry: ZooEntry) -> list[str]:
+    path = entry.folder / "evaluation" / "zoo_summary.csv"
+    if not path.is_file():
+        return ["## Evaluation", "", f"Not judged yet: `qkf zoo evaluate {entry.name}`.", ""]
+    rows = read_summary(path)
+    lines = [
+        "## Evaluation",
+        "",
+        f"Command: `qkf zoo evaluate {entry.name}`. Benchmark seeds are disjoint from the "
+        "environment seeds of training. Intervals: paired 95 % bootstrap over trials; a ratio "
+        "< 1 whose interval excludes 1 is `better`. The IQM row is over training seeds, with "
+        "the range of the seeds in brackets.",
+        "",
+    ]
+    cases = dict.fromkeys((r["scenario"], r["seed"], r["trials"], r["metric"]) for r in rows)
+    for scenario, seed, trials, metric in cases:
+        sub = [
+            r for r in rows if (r["scenario"], r["seed"], r["metric"]) == (scenario, seed, metric)
+        ]
+        versus = list(
+            dict.fromkeys(r["versus"] for r in sub if r["quantity"] in ("ratio", "ratio_range"))
+        )
+        lines += [
+            f"### {scenario} (benchmark seed {seed}, {trials} trials), `{metric}`",
+            "",
+            "| policy | RMS | "
+            + " | ".join(f"÷ {v}" for v in versus)
+            + " | share of kf→oracle gap |",
+            "|---" * (3 + len(versus)) + "|",
+        ]
+        for policy in dict.fromkeys(r["policy"] for r in sub):
+            mine = {(r["quantity"], r["versus"]): r for r in sub if r["policy"] == policy}
+            rms = mine.get(("rms", ""))
+            cells = [_fmt(rms) if rms else "–"]
+            for v in versus:
+                r = mine.get(("ratio", v)) or mine.get(("ratio_range", v))
+                cells.append(
+                    _fmt(r) + (f" {r['verdict']}" if r and r["verdict"] else "") if r else "–"
+                )
+            g = mine.get(("gap_share", "kf→oracle")) or mine.get(("gap_share_range", "kf→oracle"))
+            cells.append(_fmt(g) if g else "–")
+            lines.append(f"| {policy} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+def write_card(entry: ZooEntry) -> Path:
+    """Write ``card.md`` of the entry; returns its path."""
+    text = "\n".join(_training_lines(entry) + _evaluation_lines(entry)).rstrip() + "\n"
+    path = entry.folder / "card.md"
+    atomic_write_text(path, text)
+    return path

@@ -1,0 +1,249 @@
+r"""Observations of the transfer-alignment environments: a registry, one entry per env version
+(docs/environment.md, "Observation").
+
+An observation turns the filter's record of the decision period just run into one float32
+vector per episode. Everything it reads is available on board: the filter's own covariance,
+its innovations and their statistics, the rate it propagates with, the clock and the κ in use.
+The truth never enters an observation (it may shape a reward in simulation, never what the
+agent sees).
+
+* ``v0`` (``qkf/TransferAlignment-v0``, 9 entries): the original observation, kept unchanged
+  so that saved v0 policies act as they were trained.
+* ``v1`` (``qkf/TransferAlignment-v1``, 12 entries): every entry of order one. The likelihood
+  gain of v0 (≈ 1e-6 … 5e-4) is replaced by change-detection statistics of the innovations
+  (log NIS, a windowed NIS, a CUSUM, the time since the last NIS alarm) and the rotation
+  history (time since the rate last changed).
+
+An observation object is stateful over the N episodes of a batch: ``reset(rows, kappa_pos)``
+starts episodes ``rows`` (returning their first observations), ``__call__(view)`` returns the
+observations (N, size) after one period. Register your own with
+``OBSERVATIONS.register(name, Observation(factory, size, description, needs_likelihood))``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from qkf.core.registry import Registry
+from qkf.transfer_alignment.filter import FilterRecord
+
+OBS_LIMIT = 100.0  # observations are clipped to ±this
+
+NIS_ALARM = 4.0
+"""v1: a period whose mean NIS per measurement row exceeds this is an alarm. Under a
+consistent filter the 10-epoch mean of χ²/m has mean 1 and standard deviation ≈ 0.2–0.3, so a
+chance alarm is a > 10σ event; a calibration jump seen during a rotation gives 10 … 100."""
+CUSUM_DRIFT = 1.0
+"""v1: drift of the one-sided CUSUM ``S ← max(0, S + x − 1 − drift)`` of the period's mean
+NIS per row ``x``: S decays by ≈ 1 per period under a consistent filter."""
+NIS_WINDOW = 6
+"""v1: periods in the windowed NIS (60 s at the default 10-s period)."""
+RATE_CHANGE_DEG_S = 0.2
+"""v1: a change of ω̂ between the ends of two periods larger than this (deg/s) marks a
+manoeuvre starting, ending or changing axis: above the orbit rate of any Earth orbit
+(≤ 0.07 deg/s) and its noise, below the rotation rates of attitude manoeuvres."""
+TIME_SCALE_S = 10.0
+"""v1: times since an event are shown as ``log10(1 + t / TIME_SCALE_S)`` (0 at the event,
+1 after 90 s, 2 after 990 s)."""
+LOG_FLOOR = 1e-2  # log10 of NIS statistics is floored here (−2)
+
+
+@dataclass(frozen=True)
+class PeriodView:
+    """What an observation sees of one decision period of N episodes (SI units)."""
+
+    record: FilterRecord  # the agent's filter over the period
+    valid: np.ndarray  # (N, P) bool: epochs inside the episode
+    last: np.ndarray  # (N,) index of the last valid epoch of the period
+    steps: np.ndarray  # (N,) valid epochs (at least 1)
+    loglik_gain: np.ndarray | None  # (N,) ℓ_agent − ℓ_nominal, if the observation asked for it
+    elapsed: np.ndarray  # (N,) fraction of the episode done after the period
+    kappa_pos: np.ndarray  # (N,) position of the κ in use on the action scale, 0 … 1
+    p0_sigma: np.ndarray  # (15,) prior sigmas
+    n_meas: int  # measurement rows per epoch (6 with rate matching, else 3)
+    dt: float  # s
+
+
+class ObservationState(Protocol):
+    """The stateful observation of a batch of N episodes."""
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        """Start episodes ``rows``; their first observations (len(rows), size)."""
+        ...
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        """Observations (N, size) after one period, float32, finite, within ±OBS_LIMIT."""
+        ...
+
+
+@dataclass(frozen=True)
+class Observation:
+    """An observation kind: ``factory(n, period_s)`` builds its state for a batch of n."""
+
+    factory: Callable[[int, float], ObservationState]
+    size: int
+    description: str
+    needs_likelihood: bool = False  # the κ = 1 shadow filter is run for the likelihood gain
+
+
+OBSERVATIONS: Registry[Observation] = Registry("observation", group="qkf.observations")
+"""Observation kinds by name (``observation=`` of the environments)."""
+
+
+def finite_clipped(obs: np.ndarray) -> np.ndarray:
+    """NaN → 0, ±∞ → ±OBS_LIMIT, clipped to ±OBS_LIMIT, float32."""
+    obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+    return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
+
+
+def masked_mean(x: np.ndarray, valid: np.ndarray, empty: float = 0.0) -> np.ndarray:
+    """Row means over finite, valid entries; ``empty`` for a row without any."""
+    ok = valid & np.isfinite(x)
+    n = ok.sum(axis=1)
+    return np.where(n > 0, np.where(ok, x, 0.0).sum(axis=1) / np.maximum(n, 1), empty)
+
+
+def sigma_ratios(view: PeriodView) -> np.ndarray:
+    """Mean ``log10(σ/σ₀)`` of the attitude, bias and calibration blocks at the period's last
+    valid epoch (N, 3)."""
+    rows = np.arange(view.last.size)
+    log_ratio = 0.5 * np.log10(view.record.var[rows, view.last] / view.p0_sigma**2)
+    return np.stack(
+        [
+            log_ratio[:, 0:3].mean(axis=1),
+            log_ratio[:, 3:6].mean(axis=1),
+            log_ratio[:, 6:15].mean(axis=1),
+        ],
+        axis=1,
+    )
+
+
+def rate_deg_s(view: PeriodView) -> np.ndarray:
+    """ω̂ at the period's last valid epoch, deg/s (N, 3)."""
+    rows = np.arange(view.last.size)
+    return view.record.rate[rows, view.last] / (np.pi / 180.0)
+
+
+class ObservationV0:
+    """The 9-entry observation of ``qkf/TransferAlignment-v0`` (table in docs/environment.md)."""
+
+    size = 9
+
+    def __init__(self, n: int, period_s: float) -> None:
+        self.n = n
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        obs = np.zeros((rows.size, self.size), dtype=np.float32)
+        obs[:, 8] = kappa_pos
+        return obs
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        rec = view.record
+        assert view.loglik_gain is not None
+        obs = np.column_stack(
+            [
+                sigma_ratios(view),
+                masked_mean(rec.nis_att, view.valid) / 3.0,
+                masked_mean(rec.nis_rate, view.valid) / 3.0,
+                view.loglik_gain / (view.steps * view.n_meas),
+                view.elapsed,
+                np.linalg.norm(rate_deg_s(view), axis=1),
+                view.kappa_pos,
+            ]
+        )
+        return finite_clipped(obs)
+
+
+class ObservationV1:
+    """The 12-entry observation of ``qkf/TransferAlignment-v1``, every entry of order one.
+
+    ====  ======================================================================  ============
+    Obs   Meaning                                                                 Typical
+    ====  ======================================================================  ============
+    0–2   mean ``log10(σ/σ₀)`` of the attitude, bias, calibration blocks of P      −3.5 … 0
+    3     ``log10`` of the period's mean attitude NIS / 3 (floor −2)               ≈ 0 ± 0.3
+    4     ``log10`` of the period's mean rate NIS / 3 (0 without rate matching)    ≈ 0; ≤ 2 events
+    5     ``log10`` of the mean NIS per row over the last ``NIS_WINDOW`` periods   ≈ 0
+    6     ``log10(1 + S)``, S the CUSUM of the period's mean NIS per row           0; ≤ 2 events
+    7     ``log10(1 + t/10 s)``, t the time since the last NIS alarm (or start)    0 … 2.6
+    8     ``|ω̂|`` at the end of the period, deg/s                                  0.06 … 1.5
+    9     ``log10(1 + t/10 s)``, t the time since ω̂ last changed (a manoeuvre)     0 … 2.6
+    10    elapsed fraction of the episode                                          0 … 1
+    11    position of the κ in use on the action scale                             0 … 1
+    ====  ======================================================================  ============
+    """
+
+    size = 12
+
+    def __init__(self, n: int, period_s: float) -> None:
+        self.period_s = period_s
+        self.cusum = np.zeros(n)
+        self.window = np.ones((n, NIS_WINDOW))  # past periods' mean NIS per row, newest last
+        self.since_alarm = np.zeros(n)  # s
+        self.since_rate_change = np.zeros(n)  # s
+        self.last_rate = np.full((n, 3), np.nan)  # deg/s; NaN: no period seen yet
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        self.cusum[rows] = 0.0
+        self.window[rows] = 1.0
+        self.since_alarm[rows] = 0.0
+        self.since_rate_change[rows] = 0.0
+        self.last_rate[rows] = np.nan
+        obs = np.zeros((rows.size, self.size), dtype=np.float32)
+        obs[:, 11] = kappa_pos
+        return obs
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        rec = view.record
+        period = view.steps * view.dt  # s of filtering in this period
+        x_att = masked_mean(rec.nis_att, view.valid, empty=3.0) / 3.0
+        x_rate = masked_mean(rec.nis_rate, view.valid, empty=3.0) / 3.0
+        x_all = masked_mean(rec.nis, view.valid, empty=float(view.n_meas)) / view.n_meas
+        x_all = np.where(np.isfinite(x_all), x_all, OBS_LIMIT)
+        self.cusum = np.maximum(0.0, self.cusum + x_all - 1.0 - CUSUM_DRIFT)
+        self.window = np.concatenate([self.window[:, 1:], x_all[:, None]], axis=1)
+        alarm = x_all > NIS_ALARM
+        self.since_alarm = np.where(alarm, 0.0, self.since_alarm + period)
+        rate = rate_deg_s(view)
+        changed = np.linalg.norm(rate - self.last_rate, axis=1) > RATE_CHANGE_DEG_S
+        self.since_rate_change = np.where(changed, 0.0, self.since_rate_change + period)
+        self.last_rate = rate
+        obs = np.column_stack(
+            [
+                sigma_ratios(view),
+                np.log10(np.maximum(x_att, LOG_FLOOR)),
+                np.log10(np.maximum(x_rate, LOG_FLOOR)),
+                np.log10(np.maximum(self.window.mean(axis=1), LOG_FLOOR)),
+                np.log10(1.0 + self.cusum),
+                np.log10(1.0 + self.since_alarm / TIME_SCALE_S),
+                np.linalg.norm(rate, axis=1),
+                np.log10(1.0 + self.since_rate_change / TIME_SCALE_S),
+                view.elapsed,
+                view.kappa_pos,
+            ]
+        )
+        return finite_clipped(obs)
+
+
+OBSERVATIONS.register(
+    "v0",
+    Observation(
+        ObservationV0,
+        ObservationV0.size,
+        "v0: P blocks, mean NIS, likelihood gain (≈ 1e-6 … 5e-4), time, |ω̂|, κ",
+        needs_likelihood=True,
+    ),
+)
+OBSERVATIONS.register(
+    "v1",
+    Observation(
+        ObservationV1,
+        ObservationV1.size,
+        "v1: P blocks, log NIS, windowed NIS, CUSUM, time since alarm, |ω̂|, time since "
+        "the rate changed, time, κ (all of order one)",
+    ),
+)
