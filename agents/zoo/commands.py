@@ -77,7 +77,7 @@ def evaluate_case(
     from qkf.transfer_alignment.config import load_config
     from qkf.transfer_alignment.report import write_bench
 
-    cfg = load_config(case.scenario)
+    cfg = load_config(case.scenario, list(case.overrides))
     specs = [*case.baselines, *(["oracle"] if case.oracle else []), *policy_methods(entry)]
     res = run_benchmark(
         cfg, parse_methods(",".join(specs)), trials or case.trials, case.seed, progress=progress

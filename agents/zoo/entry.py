@@ -39,6 +39,7 @@ class JudgeCase(StrictModel):
     """One benchmark the entry's policies are judged on (all training seeds, paired)."""
 
     scenario: str
+    overrides: list[str] = Field(default_factory=list)  # --set style, of the scenario
     seed: Annotated[int, Field(ge=0)] = 7000
     trials: Annotated[int, Field(ge=2)] = 64
     metric: str = "ma_urad_settled"
