@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from agents.zoo.entry import ZooEntry
 from agents.zoo.summary import read_summary
 from envs import TA_ENV_OBSERVATIONS
@@ -53,9 +55,10 @@ def _training_lines(entry: ZooEntry) -> list[str]:
         info_file = entry.seed_dir(s) / "training.json"
         info = json.loads(info_file.read_text()) if info_file.is_file() else {}
         score = entry.validation_score(s)
+        shown = f"{score:.4g}" if np.isfinite(score) else "–"
         lines.append(
             f"| {s} | {info.get('wall_s', '–')} | {info.get('cpu_count', '–')} | "
-            f"{score:.4g} | {'yes' if s == chosen else ''} |"
+            f"{shown} | {'yes' if s == chosen else ''} |"
         )
     lines += [
         "",
