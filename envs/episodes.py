@@ -95,7 +95,7 @@ class BatchedEpisodes:
         self.settled = window_masks(self.t, cfg.run.settled_s)["settled"]
         self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
         self.kf = TransferAlignmentKF(self.params, n)
-        self.nominal = TransferAlignmentKF(self.params, n)
+        self.nominal = TransferAlignmentKF(self.params, n) if self.needs_likelihood else None
         self.reference = (
             TransferAlignmentKF(self.params, n) if self.reward.needs_reference else None
         )
@@ -148,7 +148,7 @@ class BatchedEpisodes:
             self._window(a, k0) for a in (self.gyro, self.ads_q, self.ads_rate)
         )
         meas = self._window(self.has_meas, k0) & valid
-        if self.needs_likelihood:
+        if self.nominal is not None:
             self.nominal.copy_state_from(self.kf)
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
@@ -168,7 +168,7 @@ class BatchedEpisodes:
         diverged = self.kf.diverged.copy()
         steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has no valid epoch
         dll = None
-        if self.needs_likelihood:
+        if self.nominal is not None:
             rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
             ll = np.where(valid, rec.loglik, 0.0).sum(axis=1)
             ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)

@@ -37,7 +37,8 @@ import numpy as np
 from qkf.core.registry import Registry
 from qkf.core.stats import nees
 from qkf.transfer_alignment.filter import FilterRecord
-from qkf.transfer_alignment.states import DISPLAY_UNIT
+from qkf.transfer_alignment.model import CALIB
+from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUPS
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ REWARDS.register(
 REWARDS.register(
     "misalignment_gain",
     Reward(
-        settled_gain(slice(9, 15)),
+        settled_gain(GROUPS["ma_urad"]),
         "settled misalignment mean-square reduction against the nominal-κ filter, µrad²",
         uses_truth=True,
         needs_reference=True,
@@ -139,7 +140,7 @@ REWARDS.register(
 REWARDS.register(
     "calibration_gain",
     Reward(
-        settled_gain(slice(6, 15)),
+        settled_gain(CALIB),
         "settled calibration (ppm, µrad) mean-square reduction against the nominal-κ filter",
         uses_truth=True,
         needs_reference=True,

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -23,6 +23,9 @@ from qkf.core.config import ConfigError
 from qkf.redundant_gyros.cli import app as gyros_app
 from qkf.sca_fusion.cli import fuse_cmd
 from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
+
+if TYPE_CHECKING:  # the zoo is imported by its commands only (torch stays unloaded)
+    from agents.zoo import ZooEntry
 
 app = typer.Typer(
     add_completion=False,
@@ -378,7 +381,7 @@ zoo_app = typer.Typer(
 )
 
 
-def _entry(name: str):  # type: ignore[no-untyped-def]
+def _entry(name: str) -> ZooEntry:
     from agents.zoo import load_entry
 
     try:

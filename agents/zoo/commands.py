@@ -21,7 +21,7 @@ from pathlib import Path
 from agents.config import load_train_config
 from agents.training import plan_training, run_training
 from agents.zoo.card import write_card
-from agents.zoo.entry import SPEC_FILE, ZOO_DIR, JudgeCase, ZooEntry
+from agents.zoo.entry import ZOO_DIR, JudgeCase, ZooEntry
 from agents.zoo.summary import judge_summary, write_summary
 from qkf.core.io import atomic_write_bytes
 
@@ -128,4 +128,4 @@ def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
     return best
 
 
-__all__ = ["SPEC_FILE", "evaluate_entry", "promote", "train_entry"]
+__all__ = ["evaluate_case", "evaluate_entry", "policy_methods", "promote", "train_entry"]

@@ -18,7 +18,13 @@ import numpy as np
 
 from agents.zoo.entry import JudgeCase, ZooEntry
 from qkf.core.io import atomic_write_text
-from qkf.core.stats import bootstrap_rms, interquartile_mean, percentile_interval, ratio_side
+from qkf.core.stats import (
+    bootstrap_rms,
+    interquartile_mean,
+    percentile_interval,
+    ratio_side,
+    resample_counts,
+)
 
 RESAMPLES = 2000
 LEVEL = 0.95
@@ -54,8 +60,8 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
     """The rows of one judging case (see module docstring)."""
     per_trial = read_metric(trials_csv, case.metric)
     n = len(next(iter(per_trial.values())))
-    rng_counts = _counts(n, case.seed)
-    reps = {m: bootstrap_rms(v**2, rng_counts) for m, v in per_trial.items()}
+    counts = resample_counts(n, RESAMPLES, case.seed)
+    reps = {m: bootstrap_rms(v**2, counts) for m, v in per_trial.items()}
     point = {m: float(np.sqrt(np.mean(v**2))) for m, v in per_trial.items()}
     policies = [m for m in per_trial if m.startswith(f"{entry.name}:s")]
     bases = [b for b in case.baselines if b in per_trial]
@@ -108,12 +114,6 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
                 row(iqm, "gap_share_range", "kf→oracle", interquartile_mean(s), s.min(), s.max())
             )
     return rows
-
-
-def _counts(n: int, seed: int) -> np.ndarray:
-    from qkf.core.stats import resample_counts
-
-    return resample_counts(n, RESAMPLES, seed)
 
 
 def write_summary(rows: list[JudgeRow], path: Path) -> Path:

@@ -54,10 +54,10 @@ from qkf.transfer_alignment.methods.base import (
     section_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
+from qkf.transfer_alignment.model import CALIB
 from qkf.transfer_alignment.scenario import ScenarioData
 
-ATT = slice(0, 3)
-CAL = slice(6, 15)
+ATT = slice(0, 3)  # attitude states, and the attitude rows of the innovation
 
 
 @dataclass(frozen=True)
@@ -156,7 +156,7 @@ def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
         rec = step_recording(kf, data, k, k + 1, kappa_t[:, None, :], cov)
         est[:, k] = rec.est[:, 0]
         nu = rec.innov[:, 0, ATT]
-        dx = rec.dx[:, 0, CAL]
+        dx = rec.dx[:, 0, CALIB]
         new = has_meas[:, k] & ~kf.diverged & np.isfinite(nu).all(axis=1)
         if data.t[k] < st.warmup_s - 1e-9 or not np.any(new):
             continue

@@ -25,12 +25,14 @@ from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.metrics import state_errors, window_masks
+from qkf.transfer_alignment.model import CALIB
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
+from qkf.transfer_alignment.states import GROUPS
 
 METRIC_STATES = {
-    "ma_urad_settled": slice(9, 15),
-    "sf_ppm_settled": slice(6, 9),
-    "calibration_settled": slice(6, 15),
+    "ma_urad_settled": GROUPS["ma_urad"],
+    "sf_ppm_settled": GROUPS["sf_ppm"],
+    "calibration_settled": CALIB,
 }
 
 

@@ -96,9 +96,6 @@ from qkf.transfer_alignment.methods.base import (
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
-ATT = slice(0, 3)
-CAL = slice(6, 15)
-
 
 @dataclass(frozen=True)
 class VbakfSettings:
@@ -282,7 +279,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
     k_min, k_max = float(kappas.min()), float(kappas.max())
     d = prm.p0_sigma
     dd = np.outer(d, d)
-    q_step = prm.qp0 * prm.dt / d[CAL] ** 2  # q_p0 Δt in scaled units, per calibration term
+    q_step = prm.qp0 * prm.dt / d[model.CALIB] ** 2  # q_p0 Δt in scaled units, per calibration term
     has_meas = np.broadcast_to(np.asarray(data.has_meas, dtype=bool), (b, n))
     # IW state of R_a in scaled units (R̃_a = I for the assumed σ_a)
     u, u_scale = r_prior(np.broadcast_to(np.eye(3), (b, 3, 3)), st.r_prior_dof)
@@ -330,8 +327,8 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
                 u_scale = np.where(good[:, None, None], vb.u_scale, u_scale)
             # effective κ of the calibration block: 1 + (P̂⁻ − P̃⁻)_ii / (q_p0 Δt)
             delta = (
-                np.diagonal(p_hat, axis1=1, axis2=2)[:, CAL]
-                - np.diagonal(p_nom, axis1=1, axis2=2)[:, CAL]
+                np.diagonal(p_hat, axis1=1, axis2=2)[:, model.CALIB]
+                - np.diagonal(p_nom, axis1=1, axis2=2)[:, model.CALIB]
             )
             with np.errstate(invalid="ignore"):
                 kap = np.clip(1.0 + delta / q_step, k_min, k_max)
