@@ -37,7 +37,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 
 from agents.algorithms import ALGORITHMS, algorithm_class
-from envs import ENV_ID, ENV_ID_V1, GYRO_ENV_ID, TA_ENV_OBSERVATIONS
+from envs import ENV_ID, ENV_ID_V1, ENV_ID_V2, GYRO_ENV_ID, TA_ENV_OBSERVATIONS
 from envs.observations import OBSERVATIONS
 from envs.redundant_gyro import GYRO_REWARDS
 from envs.rewards import REWARDS
@@ -71,6 +71,7 @@ class EvalConfig(StrictModel):
 ENV_REWARDS: dict[str, Registry[Any]] = {
     ENV_ID: REWARDS,
     ENV_ID_V1: REWARDS,
+    ENV_ID_V2: REWARDS,
     GYRO_ENV_ID: GYRO_REWARDS,
 }
 """The environments ``qkf train`` can train on, with their reward registries."""

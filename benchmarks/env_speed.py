@@ -57,7 +57,7 @@ def main() -> None:
 
 def ppo_fps(steps: int) -> None:
     """PPO training throughput (env steps/s, end to end) on one env and on the batched vec env,
-    and for the zoo's set-up (v1 observation, ``misalignment_gain`` with its reference filter,
+    and for the zoo's set-up (v2 observation, ``misalignment_gain`` with its reference filter,
     ``thermal_snap_random``) the share of PPO's wall time spent stepping the environment."""
     import torch
     from stable_baselines3 import PPO
@@ -69,13 +69,13 @@ def ppo_fps(steps: int) -> None:
 
     def zoo_env() -> TransferAlignmentVecEnv:
         return TransferAlignmentVecEnv(
-            16, "thermal_snap_random", reward="misalignment_gain", observation="v1"
+            16, "thermal_snap_random", reward="misalignment_gain", observation="v2"
         )
 
     for name, env in (
         ("PPO, 1 env (DummyVecEnv)", DummyVecEnv([TransferAlignmentEnv])),
         ("PPO, 16 envs (batched VecEnv)", TransferAlignmentVecEnv(16)),
-        ("PPO, 16 envs, v1 + misalignment_gain", zoo_env()),
+        ("PPO, 16 envs, v2 + misalignment_gain", zoo_env()),
     ):
         model = PPO("MlpPolicy", env, n_steps=max(64, 2048 // env.num_envs), seed=0, device="cpu")
         t0 = time.perf_counter()
@@ -88,7 +88,7 @@ def ppo_fps(steps: int) -> None:
     rng = np.random.default_rng(1)
     alone = rate(lambda: env.step(rng.integers(0, 11, 16)), 16, 3.0)
     print(
-        f"v1 + misalignment_gain env alone: {alone:8,.0f} env-steps/s; share of PPO wall time "
+        f"v2 + misalignment_gain env alone: {alone:8,.0f} env-steps/s; share of PPO wall time "
         f"in the environment: {ppo / alone:.0%}"
     )
 

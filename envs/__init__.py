@@ -4,7 +4,8 @@
 process-noise factor κ every decision period. The episode length follows the config (the
 environment truncates itself), so no ``max_episode_steps`` is registered.
 ``qkf/TransferAlignment-v1`` is the same task with the order-one observation ``v1``
-(:mod:`envs.observations`); v0 stays as it was, for the policies trained on it.
+(:mod:`envs.observations`), ``qkf/TransferAlignment-v2`` adds the age of the current change to
+it; v0 and v1 stay as they were, for the policies trained on them.
 ``qkf/RedundantGyroCalibration-v0`` asks the same of the redundant-gyro calibration UKF
 (docs/redundant_gyros.md).
 """
@@ -20,7 +21,8 @@ from envs.vector import TransferAlignmentVectorEnv
 
 ENV_ID = "qkf/TransferAlignment-v0"
 ENV_ID_V1 = "qkf/TransferAlignment-v1"
-TA_ENV_OBSERVATIONS = {ENV_ID: "v0", ENV_ID_V1: "v1"}
+ENV_ID_V2 = "qkf/TransferAlignment-v2"
+TA_ENV_OBSERVATIONS = {ENV_ID: "v0", ENV_ID_V1: "v1", ENV_ID_V2: "v2"}
 """The transfer-alignment environment ids and the observation each one uses."""
 
 for _id, _obs in TA_ENV_OBSERVATIONS.items():
@@ -45,6 +47,7 @@ if GYRO_ENV_ID not in registry:
 __all__ = [
     "ENV_ID",
     "ENV_ID_V1",
+    "ENV_ID_V2",
     "GYRO_ENV_ID",
     "GYRO_REWARDS",
     "OBSERVATIONS",

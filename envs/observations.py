@@ -13,6 +13,11 @@ agent sees).
   gain of v0 (≈ 1e-6 … 5e-4) is replaced by change-detection statistics of the innovations
   (log NIS, a windowed NIS, a CUSUM, the time since the last NIS alarm) and the rotation
   history (time since the rate last changed).
+* ``v2`` (``qkf/TransferAlignment-v2``, 13 entries): v1 plus the age of the current change,
+  the time since the first alarm of the present run of alarms. v1's time since the *last*
+  alarm restarts at every alarm, and a calibration change raises one at every rotation axis
+  that follows it, so a memoryless policy on v1 cannot tell a fresh change from an old one
+  seen again (docs/environment.md, "Observation v2").
 
 An observation object is stateful over the N episodes of a batch: ``reset(rows, kappa_pos)``
 starts episodes ``rows`` (returning their first observations), ``__call__(view)`` returns the
@@ -49,6 +54,14 @@ manoeuvre starting, ending or changing axis: above the orbit rate of any Earth o
 TIME_SCALE_S = 10.0
 """v1: times since an event are shown as ``log10(1 + t / TIME_SCALE_S)`` (0 at the event,
 1 after 90 s, 2 after 990 s)."""
+QUIET_S = 600.0
+"""v2: an alarm after at least this long without one starts a new change (its age restarts at
+0); alarms closer together belong to the same change. Longer than a rotation sequence over
+three axes (the alarms a change raises as each axis makes it observable), shorter than the
+time between calibration events of the thermal scenarios."""
+ONSET_CAP_S = 1.0e4
+"""v2: the age of the change is shown capped here (``log10(1 + 1000) = 3``), which is also
+what is shown before the first alarm of an episode."""
 LOG_FLOOR = 1e-2  # log10 of NIS statistics is floored here (−2)
 
 
@@ -193,7 +206,7 @@ class ObservationV1:
         self.since_alarm[rows] = 0.0
         self.since_rate_change[rows] = 0.0
         self.last_rate[rows] = np.nan
-        obs = np.zeros((rows.size, self.size), dtype=np.float32)
+        obs = np.zeros((rows.size, ObservationV1.size), dtype=np.float32)
         obs[:, 11] = kappa_pos
         return obs
 
@@ -229,6 +242,42 @@ class ObservationV1:
         return finite_clipped(obs)
 
 
+class ObservationV2(ObservationV1):
+    """The 13-entry observation of ``qkf/TransferAlignment-v2``: v1's twelve entries, then
+
+    ====  ======================================================================  ============
+    12    ``log10(1 + a/10 s)``, a the age of the current change: time since the    0 … 3
+          first alarm after ≥ ``QUIET_S`` without one (``ONSET_CAP_S`` if none)
+    ====  ======================================================================  ============
+    """
+
+    size = 13
+
+    def __init__(self, n: int, period_s: float) -> None:
+        super().__init__(n, period_s)
+        self.quiet = np.full(n, np.inf)  # s since the last alarm (∞: none this episode)
+        self.age = np.full(n, np.inf)  # s since the current change began (∞: none yet)
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        first = super().reset(rows, kappa_pos)
+        self.quiet[rows] = np.inf
+        self.age[rows] = np.inf
+        return np.column_stack([first, np.full(rows.size, self._shown(np.inf))]).astype(np.float32)
+
+    @staticmethod
+    def _shown(age_s: np.ndarray | float) -> np.ndarray:
+        return np.log10(1.0 + np.minimum(age_s, ONSET_CAP_S) / TIME_SCALE_S)
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        obs = super().__call__(view)
+        period = view.steps * view.dt
+        alarm = self.since_alarm == 0.0  # v1 restarted its clock: this period alarmed
+        onset = alarm & (self.quiet >= QUIET_S)
+        self.age = np.where(onset, 0.0, self.age + period)
+        self.quiet = np.where(alarm, 0.0, self.quiet + period)
+        return finite_clipped(np.column_stack([obs, self._shown(self.age)]))
+
+
 OBSERVATIONS.register(
     "v0",
     Observation(
@@ -245,5 +294,14 @@ OBSERVATIONS.register(
         ObservationV1.size,
         "v1: P blocks, log NIS, windowed NIS, CUSUM, time since alarm, |ω̂|, time since "
         "the rate changed, time, κ (all of order one)",
+    ),
+)
+OBSERVATIONS.register(
+    "v2",
+    Observation(
+        ObservationV2,
+        ObservationV2.size,
+        "v2: v1 and the age of the current change (time since the first alarm of the present "
+        "run of alarms)",
     ),
 )

@@ -1,5 +1,5 @@
-"""The v1 environment: its observation statistics by hand, the gain rewards against an
-independent run of the methods, and registration (docs/environment.md)."""
+"""The v1 and v2 environments: their observation statistics by hand, the gain rewards against
+an independent run of the methods, and registration (docs/environment.md)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,11 @@ from envs.observations import (
     CUSUM_DRIFT,
     NIS_ALARM,
     OBSERVATIONS,
+    ONSET_CAP_S,
+    QUIET_S,
     TIME_SCALE_S,
     ObservationV1,
+    ObservationV2,
     PeriodView,
 )
 from qkf.core.stats import interquartile_mean
@@ -83,6 +86,37 @@ def test_v1_statistics_follow_a_hand_computation() -> None:
     assert cusum == pytest.approx(18.0)  # 0, 0, 20 − 2 = 18, +1 at x = 3, −1 when calm again
 
 
+def test_v2_change_age_follows_a_hand_computation() -> None:
+    """The age restarts at an alarm after ≥ QUIET_S of calm only: the alarms that the same
+    change raises at the following rotation axes do not restart it."""
+    obs_v1, obs_v2 = ObservationV1(1, 10.0), ObservationV2(1, 10.0)
+    first = obs_v2.reset(np.array([0]), 0.5)
+    obs_v1.reset(np.array([0]), 0.5)
+    assert first.shape == (1, 13) and first[0, 11] == 0.5
+    assert first[0, 12] == pytest.approx(np.log10(1 + ONSET_CAP_S / TIME_SCALE_S))
+    quiet_periods = int(QUIET_S // 10)
+    calm, alarm = 1.0, 20.0
+    # calm; a change raising alarms at three axes 60 s apart; calm for QUIET_S − 10 s and an
+    # alarm (same change); calm for QUIET_S and an alarm (a new change)
+    script = [calm] * 3 + [alarm] + [calm] * 5 + [alarm] + [calm] * 5 + [alarm]
+    script += [calm] * (quiet_periods - 1) + [alarm] + [calm] * quiet_periods + [alarm, calm]
+    age, quiet, ages = np.inf, np.inf, []
+    rate = np.array([0.0, 0.0, 0.06])
+    for x in script:
+        view = _view(x, rate)
+        o1, o2 = obs_v1(view)[0], obs_v2(view)[0]
+        if x > NIS_ALARM:
+            age = 0.0 if quiet >= QUIET_S else age + 10.0
+            quiet = 0.0
+        else:
+            age, quiet = age + 10.0, quiet + 10.0
+        ages.append(age)
+        np.testing.assert_array_equal(o2[:12], o1)  # v2 extends v1
+        assert o2[12] == pytest.approx(np.log10(1 + min(age, ONSET_CAP_S) / TIME_SCALE_S))
+    restarts = [i for i, a in enumerate(ages) if a == 0.0]
+    assert restarts == [3, len(script) - 2]  # the first alarm and the one after the long calm
+
+
 def test_v1_is_registered_with_its_observation() -> None:
     env = gym.make("qkf/TransferAlignment-v1", scenario="paper", overrides=SHORT)
     assert env.observation_space.shape == (OBSERVATIONS["v1"].size,)
@@ -94,6 +128,10 @@ def test_v1_is_registered_with_its_observation() -> None:
     vec = gym.make_vec("qkf/TransferAlignment-v1", num_envs=2, scenario="paper", overrides=SHORT)
     assert vec.single_observation_space.shape == (12,)
     assert envs.TA_ENV_OBSERVATIONS["qkf/TransferAlignment-v0"] == "v0"
+    v2 = gym.make("qkf/TransferAlignment-v2", scenario="paper", overrides=SHORT)
+    assert v2.observation_space.shape == (13,)
+    obs, _ = v2.reset(seed=3)
+    assert v2.observation_space.contains(obs)
 
 
 @pytest.mark.parametrize(

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import envs
-from envs import ENV_ID, ENV_ID_V1, TransferAlignmentEnv, TransferAlignmentVectorEnv
+from envs import ENV_ID, ENV_ID_V1, ENV_ID_V2, TransferAlignmentEnv, TransferAlignmentVectorEnv
 
 SHORT = ["scenario.duration_s=400"]
 
@@ -28,7 +28,7 @@ SHORT = ["scenario.duration_s=400"]
     ],
     ids=["discrete", "continuous", "oracle", "nees", "gain"],
 )
-@pytest.mark.parametrize("env_id", [ENV_ID, ENV_ID_V1])
+@pytest.mark.parametrize("env_id", [ENV_ID, ENV_ID_V1, ENV_ID_V2])
 def test_env_checkers_pass_without_warnings(env_id: str, kwargs: dict[str, str]) -> None:
     obs = envs.TA_ENV_OBSERVATIONS[env_id]
     with warnings.catch_warnings():
