@@ -34,14 +34,13 @@ from typing import Protocol
 import numpy as np
 
 from qkf.core.registry import Registry
+from qkf.transfer_alignment.alarms import NIS_ALARM, ChangeClock
 from qkf.transfer_alignment.filter import FilterRecord
 
 OBS_LIMIT = 100.0  # observations are clipped to ±this
+# NIS_ALARM (v1, v2: a period's mean NIS per row above it is an alarm) and QUIET_S (v2: calm
+# that separates two changes) live in qkf.transfer_alignment.alarms, shared with alarm-burst.
 
-NIS_ALARM = 4.0
-"""v1: a period whose mean NIS per measurement row exceeds this is an alarm. Under a
-consistent filter the 10-epoch mean of χ²/m has mean 1 and standard deviation ≈ 0.2–0.3, so a
-chance alarm is a > 10σ event; a calibration jump seen during a rotation gives 10 … 100."""
 CUSUM_DRIFT = 1.0
 """v1: drift of the one-sided CUSUM ``S ← max(0, S + x − 1 − drift)`` of the period's mean
 NIS per row ``x``: S decays by ≈ 1 per period under a consistent filter."""
@@ -54,11 +53,6 @@ manoeuvre starting, ending or changing axis: above the orbit rate of any Earth o
 TIME_SCALE_S = 10.0
 """v1: times since an event are shown as ``log10(1 + t / TIME_SCALE_S)`` (0 at the event,
 1 after 90 s, 2 after 990 s)."""
-QUIET_S = 600.0
-"""v2: an alarm after at least this long without one starts a new change (its age restarts at
-0); alarms closer together belong to the same change. Longer than a rotation sequence over
-three axes (the alarms a change raises as each axis makes it observable), shorter than the
-time between calibration events of the thermal scenarios."""
 ONSET_CAP_S = 1.0e4
 """v2: the age of the change is shown capped here (``log10(1 + 1000) = 3``), which is also
 what is shown before the first alarm of an episode."""
@@ -255,13 +249,11 @@ class ObservationV2(ObservationV1):
 
     def __init__(self, n: int, period_s: float) -> None:
         super().__init__(n, period_s)
-        self.quiet = np.full(n, np.inf)  # s since the last alarm (∞: none this episode)
-        self.age = np.full(n, np.inf)  # s since the current change began (∞: none yet)
+        self.clock = ChangeClock(n)
 
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
         first = super().reset(rows, kappa_pos)
-        self.quiet[rows] = np.inf
-        self.age[rows] = np.inf
+        self.clock.reset(rows)
         return np.column_stack([first, np.full(rows.size, self._shown(np.inf))]).astype(np.float32)
 
     @staticmethod
@@ -272,10 +264,8 @@ class ObservationV2(ObservationV1):
         obs = super().__call__(view)
         period = view.steps * view.dt
         alarm = self.since_alarm == 0.0  # v1 restarted its clock: this period alarmed
-        onset = alarm & (self.quiet >= QUIET_S)
-        self.age = np.where(onset, 0.0, self.age + period)
-        self.quiet = np.where(alarm, 0.0, self.quiet + period)
-        return finite_clipped(np.column_stack([obs, self._shown(self.age)]))
+        age = self.clock.update(alarm, period)
+        return finite_clipped(np.column_stack([obs, self._shown(age)]))
 
 
 OBSERVATIONS.register(

@@ -14,13 +14,13 @@ from envs.observations import (
     NIS_ALARM,
     OBSERVATIONS,
     ONSET_CAP_S,
-    QUIET_S,
     TIME_SCALE_S,
     ObservationV1,
     ObservationV2,
     PeriodView,
 )
 from qkf.core.stats import interquartile_mean
+from qkf.transfer_alignment.alarms import QUIET_S
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.filter import FilterRecord
 from qkf.transfer_alignment.methods.oracle import run_schedule

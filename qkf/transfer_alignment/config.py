@@ -24,6 +24,7 @@ from qkf.core.config import (
     apply_override,
     load_model,
 )
+from qkf.transfer_alignment.alarms import NIS_ALARM, QUIET_S
 
 
 class Maneuver(StrictModel):
@@ -311,6 +312,15 @@ class OracleConfig(StrictModel):
     )
 
 
+class AlarmBurstConfig(StrictModel):
+    """The alarm-burst method: the oracle's schedule started by an innovation alarm instead of
+    the true jump time (docs/methods.md, "Alarm burst")."""
+
+    period_s: PositiveFloat = 10.0  # decision period: NIS averaged and κ held over it
+    nis_alarm: PositiveFloat = NIS_ALARM  # mean NIS per row above which a period alarms
+    quiet_s: NonNegativeFloat = QUIET_S  # calm that separates two changes
+
+
 class AdaptiveConfig(StrictModel):
     actions: ActionSet = ActionSet()
     sage_husa: SageHusaConfig = SageHusaConfig()
@@ -322,6 +332,7 @@ class AdaptiveConfig(StrictModel):
     vbakf: VbakfConfig = VbakfConfig()
     covariance_matching: CovarianceMatchingConfig = CovarianceMatchingConfig()
     oracle: OracleConfig = OracleConfig()
+    alarm_burst: AlarmBurstConfig = AlarmBurstConfig()
 
 
 class Sweep(StrictModel):

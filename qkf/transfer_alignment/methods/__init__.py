@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from qkf.core.registry import Registry, RegistryError, load_object
+from qkf.transfer_alignment.methods.alarm_burst import run_alarm_burst
 from qkf.transfer_alignment.methods.base import (
     Method,
     MethodOutput,
@@ -65,6 +66,11 @@ BUILTIN_METHODS: tuple[str, ...] = tuple(name for name, _ in _BUILTIN)
 METHODS.register("oracle", run_oracle)
 """A reference, not a method: it reads the truth (docs/methods.md, "Oracle schedule"); so it is
 registered but not part of ``--methods all``."""
+
+METHODS.register("alarm-burst", run_alarm_burst)
+"""A flight method (it reads only the innovations), but tuned like the oracle (its κ_base,
+κ_after and W are the oracle's, 66 tuning runs), so it is named explicitly rather than run by
+``--methods all``."""
 
 METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(
     "method factory", group="qkf.method_factories"
