@@ -56,8 +56,11 @@ def _training_lines(entry: ZooEntry) -> list[str]:
         info = json.loads(info_file.read_text()) if info_file.is_file() else {}
         score = entry.validation_score(s)
         shown = f"{score:.4g}" if np.isfinite(score) else "–"
+        wall = str(info.get("wall_s", "–"))
+        if info.get("resumed_from"):  # wall_s is the last session's only
+            wall += f" (last session; resumed from {', '.join(info['resumed_from'])})"
         lines.append(
-            f"| {s} | {info.get('wall_s', '–')} | {info.get('cpu_count', '–')} | "
+            f"| {s} | {wall} | {info.get('cpu_count', '–')} | "
             f"{shown} | {'yes' if s == chosen else ''} |"
         )
     lines += [
