@@ -9,8 +9,9 @@ elsewhere) is tuned with the truth on the tuning seeds, as in ``qkf bench``. Two
 the true jump time by what the filter sees, with the oracle's own (κ_base, κ_after, W):
 
 * ``every alarm``: κ_after for W after each alarm (v1 entry 7 at 0: a period with mean NIS
-  per row > 4);
-* ``change age``: κ_after while the age of the current change (v2 entry 12) is below W.
+  per row > 4), run through the environment's v1 observation;
+* ``alarm-burst``: κ_after while the age of the current change is below W (the method of that
+  name; the same age is v2 entry 12).
 
 All run on the same trials (paired); the table gives the settled misalignment RMS, paired 95 %
 bootstrap intervals of the ratio to ``kf`` and to the constant κ_base, and the share of the
@@ -25,22 +26,22 @@ from collections.abc import Callable
 import numpy as np
 
 from envs.episodes import BatchedEpisodes
-from envs.observations import TIME_SCALE_S
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.transfer_alignment.config import Config, load_config
-from qkf.transfer_alignment.methods.oracle import run_schedule, schedule, tune_oracle
-from qkf.transfer_alignment.metrics import state_errors, window_masks
+from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule
+from qkf.transfer_alignment.methods.fixed import run_fixed
+from qkf.transfer_alignment.methods.oracle import tune_oracle
+from qkf.transfer_alignment.metrics import METRIC_COLUMNS, state_errors, trial_mean_squares
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
-from qkf.transfer_alignment.states import GROUPS
 
 Rule = Callable[[np.ndarray], np.ndarray]  # observation (B, size) → κ (B,)
 
 
 def settled_ms(cfg: Config, data: ScenarioData, est: np.ndarray) -> np.ndarray:
     """Per-trial settled mean square of the misalignment error, µrad² (B,)."""
-    err = state_errors(est, data.q_true, data.bias, data.calib)[..., GROUPS["ma_urad"]] / 1e-6
-    settled = window_masks(data.t, cfg.run.settled_s)["settled"]
-    return np.mean(err[:, settled] ** 2, axis=(1, 2))
+    err = state_errors(est, data.q_true, data.bias, data.calib)
+    ms = trial_mean_squares(err, data.t, cfg.run.settled_s)
+    return ms[:, METRIC_COLUMNS.index("ma_urad_settled")] / 1e-12
 
 
 def run_rule(cfg: Config, data: ScenarioData, observation: str, rule: Rule) -> np.ndarray:
@@ -68,37 +69,30 @@ def main() -> None:
     base, after, window = orc.base, orc.after, orc.window_s
     print(f"oracle (tuned with the truth): κ = {after:.3g} for {window:g} s, else {base:.3g}")
     n = data.n_trials
-
-    def const(k: float) -> np.ndarray:
-        return run_schedule(cfg, data, np.full((n, data.n_epochs), k)).est
-
-    below = np.log10(1.0 + window / TIME_SCALE_S) - 1e-6  # age < W, as shown in entry 12
     ms = {
-        "kf (κ = 1)": settled_ms(cfg, data, const(1.0)),
-        f"constant κ_base = {base:.3g}": settled_ms(cfg, data, const(base)),
+        "kf (κ = 1)": settled_ms(cfg, data, run_fixed(cfg, data, 1.0).est),
+        f"constant κ_base = {base:.3g}": settled_ms(cfg, data, run_fixed(cfg, data, base).est),
         "every alarm": run_rule(
             cfg, data, "v1", _hold(lambda o: o[:, 7] == 0.0, after, base, window)
         ),
-        "change age (v2 entry 12)": run_rule(
-            cfg, data, "v2", lambda o: np.where(o[:, 12] < below, after, base)
+        "alarm-burst (first alarm of a change)": settled_ms(
+            cfg, data, AlarmBurstSchedule(orc)(cfg, data).est
         ),
-        "oracle": settled_ms(
-            cfg, data, run_schedule(cfg, data, schedule(data, base, after, window)).est
-        ),
+        "oracle": settled_ms(cfg, data, orc(cfg, data).est),
     }
     counts = resample_counts(n, 2000, args.seed)
     boot = {k: bootstrap_rms(v, counts) for k, v in ms.items()}
     rms = {k: float(np.sqrt(v.mean())) for k, v in ms.items()}
     kf, cst, orc_name = "kf (κ = 1)", f"constant κ_base = {base:.3g}", "oracle"
     print(f"{cfg.name}: {n} trials of seed {args.seed}, settled misalignment RMS (µrad)")
-    print(f"{'':30s} {'RMS':>7s}  {'ratio to kf [95 %]':>24s}  {'to κ_base [95 %]':>24s}  gap")
+    print(f"{'':38s} {'RMS':>7s}  {'ratio to kf [95 %]':>24s}  {'to κ_base [95 %]':>24s}  gap")
     for k in ms:
         cells = []
         for ref in (kf, cst):
             lo, hi = percentile_interval(boot[k] / boot[ref])
             cells.append(f"{rms[k] / rms[ref]:.4f} [{float(lo):.4f}, {float(hi):.4f}]")
         share = (rms[kf] - rms[k]) / (rms[kf] - rms[orc_name])
-        print(f"{k:30s} {rms[k]:7.2f}  {cells[0]:>24s}  {cells[1]:>24s}  {share:5.2f}")
+        print(f"{k:38s} {rms[k]:7.2f}  {cells[0]:>24s}  {cells[1]:>24s}  {share:5.2f}")
 
 
 def _hold(trigger: Rule, after: float, base: float, window: float) -> Rule:
