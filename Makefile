@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 bench: $(STAMP)
-	$(BIN)/qkf bench configs/paper.yaml --out results/paper
+	$(BIN)/qkf bench configs/paper.yaml --out results/paper --overwrite
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n auto

@@ -33,22 +33,23 @@ class Policy:
     """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, size))``."""
 
     def __init__(self, path: str | Path) -> None:
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no such model file")
-        cfg_file = path.parent / "config.yaml"
-        if not cfg_file.is_file():
-            raise ConfigError(f"{path}: no config.yaml beside the model")
+        path = _model_file(path)
         # any scenario will do: the training one may be a path relative to elsewhere
-        self.cfg = load_train_config(cfg_file, check_scenario=False)
+        self.cfg = load_train_config(path.parent / "config.yaml", check_scenario=False)
         self._tab: Any = None
         self._sb3: Any = None
-        if path.suffix == ".npz":
-            from agents.tabular import TabularQAgent
+        try:
+            if path.suffix == ".npz":
+                from agents.tabular import TabularQAgent
 
-            self._tab = TabularQAgent.load(path)
-        else:
-            self._sb3 = algorithm_class(self.cfg.agent).load(path, device="cpu")
+                self._tab = TabularQAgent.load(path)
+            else:
+                self._sb3 = algorithm_class(self.cfg.agent).load(path, device="cpu")
+        except Exception as exc:  # a corrupt or foreign file: SB3/numpy raise many kinds
+            what = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+            raise ConfigError(
+                f"{path}: not a readable {self.cfg.agent} model (saved by qkf train?): {what}"
+            ) from None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         if self._tab is not None:
@@ -104,9 +105,16 @@ class PolicyMethod:
         return run_policy(cfg, data, self.path)
 
 
-def policy_method(path: str) -> PolicyMethod:
-    """Method factory of ``policy:PATH``; checks the files before any trial runs."""
+def _model_file(path: str | Path) -> Path:
+    """A saved model's path, checked: an existing file with the training's ``config.yaml``
+    beside it (``FileNotFoundError`` / ``ConfigError`` otherwise)."""
     model = Path(path)
+    if not str(path).strip():
+        raise ConfigError(
+            "no model path given (policy:PATH, e.g. policy:agents/zoo/best/model.zip)"
+        )
+    if model.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a model file (model.zip or model.npz)")
     if not model.is_file():
         raise FileNotFoundError(f"{path}: no such model file")
     if not (model.parent / "config.yaml").is_file():
@@ -114,4 +122,11 @@ def policy_method(path: str) -> PolicyMethod:
             f"{path}: no config.yaml beside the model (qkf train writes it; it names the agent, "
             "action type and decision period)"
         )
+    return model
+
+
+def policy_method(path: str) -> PolicyMethod:
+    """Method factory of ``policy:PATH``; loads the model once before any trial runs, so a
+    missing, corrupt or foreign file is refused up front (``ValueError``/``OSError``)."""
+    Policy(path)
     return PolicyMethod(path)

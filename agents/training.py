@@ -69,7 +69,7 @@ from agents.config import HEADER, TrainConfig
 from agents.tabular import TabularQAgent, train_tabular
 from envs import TA_ENV_OBSERVATIONS
 from qkf.core.config import ConfigError
-from qkf.core.io import atomic_write_bytes, atomic_write_text
+from qkf.core.io import OutputError, atomic_write_bytes, atomic_write_text, check_output_dir
 
 RESUMABLE = ("total_steps", "episodes", "eval.every_steps", "torch_threads")
 """Config fields ``resume`` may change: they say how long to go on, not what is trained."""
@@ -304,14 +304,13 @@ def _saved_config(path: Path) -> dict[str, Any] | None:
         return _canonical(data)
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out: {out}: exists and is not a directory")
-    base = out.absolute()
-    while not base.exists() and base != base.parent:
-        base = base.parent
-    if not base.is_dir():
-        raise ConfigError(f"--out: {out}: {base} is not a directory")
+def _check_out(out: str | Path) -> None:
+    """Refuse an unusable ``--out`` before anything is read or written (an empty path, a file,
+    the working, home or project folder, a parent in which nothing can be made)."""
+    try:
+        check_output_dir(out)
+    except OutputError as exc:
+        raise ConfigError(f"--out: {exc}") from None
 
 
 def plan_training(
@@ -327,8 +326,8 @@ def plan_training(
     Reads the folder, writes nothing."""
     if resume and force_new:
         raise ConfigError("--resume and --force-new exclude each other")
+    _check_out(out_dir)  # as given: Path("") would be the working directory
     out = Path(out_dir)
-    _check_out(out)
     total, rollout = rounded_total_steps(cfg)
     eff = cfg.model_copy(update={"total_steps": total}) if total != cfg.total_steps else cfg
     tabular = _is_tabular(cfg)

@@ -8,6 +8,13 @@ environment truncates itself), so no ``max_episode_steps`` is registered.
 it; v0 and v1 stay as they were, for the policies trained on them.
 ``qkf/RedundantGyroCalibration-v0`` asks the same of the redundant-gyro calibration UKF
 (docs/redundant_gyros.md).
+
+All accept ``render_mode=None`` or ``"rgb_array"`` (a frame of the episode so far, drawn only
+by ``render()``), so Stable-Baselines3's ``make_vec_env`` and RL Zoo3 (``--gym-packages envs``,
+hyperparameters in ``agents/rl_zoo3/ppo.yml``) use them as they are. A worker process that has
+not imported this package does not know the ids: name them ``"envs:qkf/TransferAlignment-v2"``
+there (Gymnasium imports the module before the lookup); docs/environment.md, "Stable-Baselines3
+and RL Zoo3".
 """
 
 from gymnasium.envs.registration import register, registry
@@ -16,7 +23,7 @@ from envs.episodes import ActionMap, BatchedEpisodes, EpisodeDriver
 from envs.observations import OBSERVATIONS, Observation
 from envs.redundant_gyro import GYRO_REWARDS, RedundantGyroCalibrationEnv
 from envs.rewards import REWARDS, PeriodOutcome, Reward
-from envs.transfer_alignment import TransferAlignmentEnv
+from envs.transfer_alignment import RENDER_MODES, TransferAlignmentEnv
 from envs.vector import TransferAlignmentVectorEnv
 
 ENV_ID = "qkf/TransferAlignment-v0"
@@ -51,6 +58,7 @@ __all__ = [
     "GYRO_ENV_ID",
     "GYRO_REWARDS",
     "OBSERVATIONS",
+    "RENDER_MODES",
     "REWARDS",
     "TA_ENV_OBSERVATIONS",
     "ActionMap",

@@ -12,7 +12,9 @@ the calibrated epochs — fixed by the config (``env.unwrapped.episode_steps``).
 
 Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``), ``action_type``
 (``discrete`` | ``continuous``), ``reward`` (a name of :data:`GYRO_REWARDS`), ``overrides``
-(``--set`` style), ``period_s``, ``render_mode`` (None only).
+(``--set`` style), ``period_s``, ``render_mode`` (``None`` or ``"rgb_array"``, as the
+transfer-alignment environment: ``render()`` draws the κ chosen so far and, over the four
+calibrated states, the RMS of the UKF's σ and of the true error, both over the prior σ₀).
 
 =====================  ===================================================================
 Action                 Meaning
@@ -58,7 +60,7 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.episodes import ActionMap
-from envs.transfer_alignment import check_render_mode
+from envs.transfer_alignment import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
 from qkf.core.registry import Registry
 from qkf.core.stats import nees
 from qkf.redundant_gyros.config import GyrosConfig, load_config
@@ -70,6 +72,8 @@ from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihoo
 OBS_SIZE = 9
 OBS_LIMIT = 100.0
 DIVERGENCE_REWARD = -1e3
+GYRO_CURVES = ("UKF σ / σ₀", "|error| / σ₀")
+"""The curves of the rendered frames: RMS over ``[b, λ, δ_u, δ_v]``, each over its prior sd."""
 
 
 @dataclass(frozen=True)
@@ -122,7 +126,7 @@ GYRO_REWARDS.register("nees", GyroReward(nees_reward, "minus |NEES/4 − 1|", us
 class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
     """Choose the calibration UKF's process-noise factor every period (module docstring)."""
 
-    metadata = {"render_modes": []}  # noqa: RUF012 - Gymnasium's convention
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}  # noqa: RUF012
 
     def __init__(
         self,
@@ -161,6 +165,13 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         )
         self._start_pos = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
         self._started = False
+        self._trace = EpisodeTrace(
+            f"RedundantGyroCalibration (gyro {self.unit.ids[self.setup.gyro]})",
+            GYRO_CURVES,
+            "RMS over the prior σ₀",
+            (float(kappas.min()), float(kappas.max())),
+            (float(self.t[self.target.start]), float(self.t[-1])),  # the calibrated span
+        )
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -181,6 +192,7 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         self._nominal = CalibrationUKF(self.setup, float(self._dt[0]))
         self._k = 0
         self._started = True
+        self._trace.clear()
         obs = np.zeros(OBS_SIZE, dtype=np.float32)
         obs[8] = self._start_pos
         return obs, {"kappa": 1.0, "diverged": False, "gyro": self.unit.ids[self.setup.gyro]}
@@ -213,6 +225,8 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
             "t_s": float(self.t[self.target.start + k1 - 1]),
             "errors": errors[-1] / DISPLAY_SCALE,
         }
+        if self.render_mode is not None:  # record only what render() will draw
+            self._trace.append(info["t_s"], kappa, self._render_values(errors[-1]))
         obs = np.zeros(OBS_SIZE, dtype=np.float32)
         if diverged:
             obs[8] = pos
@@ -240,6 +254,23 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
             OBS_LIMIT,
         ).astype(np.float32)
         return obs, reward, False, k1 >= self.n_steps, info
+
+    def _render_values(self, error: np.ndarray) -> list[float]:
+        """The UKF's σ and the true error ``error`` (4,) at the period's end, RMS over the four
+        states of each over its prior sd (dimensionless)."""
+        p0 = self.setup.p0_sd
+        with np.errstate(over="ignore", invalid="ignore"):  # a failed filter: inf/NaN → gaps
+            # |diag| only so that a broken (negative) variance of a failed UKF draws, not warns
+            sd = np.sqrt(np.abs(np.diag(self._main.P)))
+            return [
+                float(np.sqrt(np.mean(np.square(sd / p0)))),
+                float(np.sqrt(np.mean(np.square(error / p0)))),
+            ]
+
+    def render(self) -> np.ndarray | None:
+        """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8;
+        ``None`` without a render mode."""
+        return self._trace.frame() if self.render_mode is not None else None
 
 
 __all__ = ["GYRO_REWARDS", "GyroPeriod", "GyroReward", "RedundantGyroCalibrationEnv"]

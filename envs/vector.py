@@ -2,6 +2,11 @@
 batched filter (not N environments in a loop). Gymnasium's ``VectorEnv`` API, next-step
 autoreset; sub-environment ``i`` of ``reset(seed=s)`` is the single environment reset with
 seed ``s + i``, step for step.
+
+``render_mode``: ``None`` (default) or ``"rgb_array"``; with the latter every sub-environment
+records its episode as the single environment does, and ``render()`` returns one frame per
+sub-environment (a tuple of ``(H, W, 3)`` uint8 arrays, as Gymnasium's ``SyncVectorEnv``); a
+sub-environment autoreset starts its frame anew.
 """
 
 from __future__ import annotations
@@ -15,14 +20,24 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
-from envs.transfer_alignment import check_render_mode
+from envs.transfer_alignment import (
+    RENDER_FPS,
+    RENDER_MODES,
+    calibration_curves,
+    calibration_trace,
+    check_render_mode,
+)
 from qkf.transfer_alignment.config import Config
 
 
 class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     """N transfer-alignment episodes in one batched filter."""
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}  # noqa: RUF012
+    metadata = {  # noqa: RUF012 - Gymnasium's convention
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        "render_modes": list(RENDER_MODES),
+        "render_fps": RENDER_FPS,
+    }
 
     def __init__(
         self,
@@ -49,6 +64,10 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self._needs_reset = np.ones(num_envs, dtype=bool)
+        self._traces = [
+            calibration_trace(self._driver, f"TransferAlignment ({observation}) #{i}")
+            for i in range(num_envs)
+        ]
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
@@ -67,6 +86,8 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
                 self._driver.rngs[i] = seeding.np_random(s)[0]
         obs = np.stack([self._driver.reset_env(i) for i in range(self.num_envs)])
         self._needs_reset[:] = False
+        for trace in self._traces:
+            trace.clear()
         return obs, {"kappa": np.ones(self.num_envs), "diverged": np.zeros(self.num_envs, bool)}
 
     def step(
@@ -83,6 +104,13 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             obs[i] = self._driver.reset_env(int(i))
             reward[i] = 0.0
             term[i] = trunc[i] = False
+        if self.render_mode is not None:  # record only what render() will draw
+            curves = calibration_curves(self._driver, out)
+            for row, trace in enumerate(self._traces):
+                if self._needs_reset[row]:  # this step restarted the episode: a new frame
+                    trace.clear()
+                else:
+                    trace.append(float(out.t_s[row]), float(out.kappa[row]), curves[row])
         self._needs_reset = term | trunc
         info = {
             "kappa": out.kappa,
@@ -92,3 +120,10 @@ class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             "t_s": out.t_s,
         }
         return obs, reward, term, trunc, info
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """``render_mode="rgb_array"``: one frame per sub-environment, as the single
+        environment's ``render()``; ``None`` without a render mode."""
+        if self.render_mode is None:
+            return None
+        return tuple(trace.frame() for trace in self._traces)

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -25,3 +26,38 @@ def align_quat_sign(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Flip quaternions (last axis 4) onto the hemisphere of ``ref`` (q and −q are one rotation)."""
     s = np.sign(np.sum(q * ref, axis=-1, keepdims=True))
     return q * np.where(s == 0, 1.0, s)
+
+
+def _tracked_files() -> list[Path]:
+    import subprocess
+
+    try:
+        listed = subprocess.run(
+            ["git", "-C", str(ROOT), "ls-files", "-z"], capture_output=True, check=True
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return []
+    return [ROOT / p for p in listed.decode().split("\0") if p]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_command_deletes_a_file_it_did_not_write() -> Iterator[None]:
+    """The whole suite fails if anything it ran deleted a file of the checkout, rewrote a
+    shipped zoo file, or removed a file of the user's in the project root (issue 18)."""
+    import os
+
+    tracked = [p for p in _tracked_files() if p.exists()]
+    zoo = {p: p.stat().st_mtime_ns for p in tracked if "agents/zoo/" in p.as_posix()}
+    sentinel = ROOT / f".qkf-test-sentinel-{os.getpid()}"
+    sentinel.write_text("a file of the user's: no test may remove it\n")
+    yield
+    try:
+        gone = [str(p.relative_to(ROOT)) for p in tracked if not p.exists()]
+        touched = [str(p.relative_to(ROOT)) for p, t in zoo.items()
+                   if p.exists() and p.stat().st_mtime_ns != t]  # fmt: skip
+        if not sentinel.exists():
+            gone.append(sentinel.name)
+        if gone or touched:
+            pytest.fail(f"the suite deleted {gone} and rewrote {touched}", pytrace=False)
+    finally:
+        sentinel.unlink(missing_ok=True)

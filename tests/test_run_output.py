@@ -41,7 +41,7 @@ def test_rerun_leaves_no_stale_file_and_modes_follow_the_umask(tmp_path: Path) -
     assert (out / "kappa.csv").is_file()
     old = os.umask(0o027)
     try:
-        assert _bench(out, "--methods", "kf").exit_code == 0
+        assert _bench(out, "--methods", "kf", "--overwrite").exit_code == 0
     finally:
         os.umask(old)
     names = {p.name for p in out.iterdir()}

@@ -86,16 +86,21 @@ def test_zoo_train_and_evaluate(tmp_path: Path) -> None:
         for a, b in zip(_weights(tmp_path / "w" / "seed_0" / "model.zip"), first, strict=True)
     )
 
+    card_before = (folder / "card.md").read_bytes()
     res = runner.invoke(
         app, ["zoo", "evaluate", str(folder), "--work", str(tmp_path / "w"), "--quiet"]
     )
     assert res.exit_code == 0, res.output
+    # judged into the work folder; the shipped entry is not touched without --update-entry
+    assert not (folder / "evaluation").exists()
+    assert (folder / "card.md").read_bytes() == card_before
+    judged = tmp_path / "w" / "evaluation"
     trials = {}
-    with (folder / "evaluation" / "thermal_snap_seed5_trials.csv").open() as f:
+    with (judged / "thermal_snap_seed5_trials.csv").open() as f:
         for row in csv.DictReader(f):
             trials.setdefault(row["method"], []).append(float(row["ma_urad_settled"]))
     rms = {m: float(np.sqrt(np.mean(np.square(v)))) for m, v in trials.items()}
-    with (folder / "evaluation" / "zoo_summary.csv").open() as f:
+    with (judged / "zoo_summary.csv").open() as f:
         rows = list(csv.DictReader(f))
     ratio = next(r for r in rows if r["policy"] == "tiny:s1" and r["versus"] == "kf-tuned")
     assert float(ratio["value"]) == pytest.approx(rms["tiny:s1"] / rms["kf-tuned"], rel=1e-5)
@@ -107,8 +112,19 @@ def test_zoo_train_and_evaluate(tmp_path: Path) -> None:
     else:
         assert not shares
     assert any(r["policy"] == "tiny:IQM" for r in rows)
-    card = (folder / "card.md").read_text()
+    card = (tmp_path / "w" / "card.md").read_text()
     assert "| tiny:s0 |" in card and "wall time" in card
+
+    # --update-entry copies the judgement into the entry
+    res = runner.invoke(
+        app,
+        ["zoo", "evaluate", str(folder), "--work", str(tmp_path / "w3"), "--trials", "2",
+         "--quiet", "--update-entry"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    for src in (tmp_path / "w3" / "evaluation").iterdir():
+        assert (folder / "evaluation" / src.name).read_bytes() == src.read_bytes()
+    assert (folder / "card.md").read_bytes() == (tmp_path / "w3" / "card.md").read_bytes()
 
 
 def test_zoo_bad_input() -> None:

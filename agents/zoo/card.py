@@ -77,8 +77,8 @@ def _fmt(r: dict[str, str]) -> str:
     return f"{value:.4g} [{lo:.4g}, {hi:.4g}]"
 
 
-def _evaluation_lines(entry: ZooEntry) -> list[str]:
-    path = entry.folder / "evaluation" / "zoo_summary.csv"
+def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
+    path = evaluation / "zoo_summary.csv"
     if not path.is_file():
         return ["## Evaluation", "", f"Not judged yet: `qkf zoo evaluate {entry.name}`.", ""]
     rows = read_summary(path)
@@ -123,9 +123,11 @@ def _evaluation_lines(entry: ZooEntry) -> list[str]:
     return lines
 
 
-def write_card(entry: ZooEntry) -> Path:
-    """Write ``card.md`` of the entry; returns its path."""
-    text = "\n".join(_training_lines(entry) + _evaluation_lines(entry)).rstrip() + "\n"
-    path = entry.folder / "card.md"
-    atomic_write_text(path, text)
+def write_card(entry: ZooEntry, folder: Path | None = None) -> Path:
+    """Write ``card.md`` into ``folder`` (default: the entry's own), its judging table from
+    ``folder/evaluation/``; returns its path."""
+    folder = entry.folder if folder is None else folder
+    lines = _training_lines(entry) + _evaluation_lines(entry, folder / "evaluation")
+    path = folder / "card.md"
+    atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
     return path

@@ -7,14 +7,15 @@
   ``seed_<s>/``; the seed with the best last evaluation is copied to the entry's top.
 * **evaluate**: for each judging case one benchmark runs the baselines, the oracle and the
   policy of *every* training seed on the same trials (benchmark seeds, disjoint from the
-  environment seeds the agents were trained on); the bench outputs go to the work folder, the
-  per-trial table and the summary (:mod:`agents.zoo.summary`) into the entry.
+  environment seeds the agents were trained on); the bench outputs, the per-trial tables, the
+  summary (:mod:`agents.zoo.summary`) and the card go to the work folder. The shipped entry
+  (``evaluation/``, ``card.md``, tracked in git) changes only with ``update_entry``
+  (``--update-entry``), so a quick ``--trials 2`` look never rewrites the published judgement.
 * **promote**: copy an entry's shipped policy and card to ``agents/zoo/best/``.
 """
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -25,6 +26,8 @@ from agents.zoo.entry import ZOO_DIR, JudgeCase, ZooEntry
 from agents.zoo.summary import judge_summary, write_summary
 from qkf.core.io import atomic_write_bytes
 
+PROMOTED = ("config.yaml", "card.md", "SOURCE")
+"""What ``promote`` writes into ``best/`` besides the model."""
 SEED_FILES = ("config.yaml", "training.json")
 """Copied from a training run into the entry's ``seed_<s>/`` (with the model and
 ``eval/evaluations.npz`` as ``evaluations.npz``)."""
@@ -93,13 +96,15 @@ def evaluate_entry(
     trials: int | None = None,
     progress: bool = True,
     say: Callable[[str], None] = print,
+    update_entry: bool = False,
 ) -> Path:
-    """Judge every trained seed on every case; writes ``evaluation/`` and the card."""
+    """Judge every trained seed on every case; writes ``evaluation/`` and ``card.md`` into the
+    work folder, and with ``update_entry`` into the entry as well. Returns the card's path."""
     if not entry.trained_seeds():
         raise FileNotFoundError(f"{entry.folder}: no trained seed (run qkf zoo train first)")
     rows = []
-    dst = entry.folder / "evaluation"
-    dst.mkdir(exist_ok=True)
+    dst = work / "evaluation"
+    dst.mkdir(parents=True, exist_ok=True)
     for case in entry.spec.cases():
         say(f"judging on {case.scenario}, benchmark seed {case.seed}")
         folder = evaluate_case(entry, case, work, trials, progress)
@@ -107,9 +112,15 @@ def evaluate_entry(
         _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
         _copy(folder / "summary.md", dst / f"{stem}_summary.md")
         rows += judge_summary(entry, case, folder / "trials.csv")
-    path = write_summary(rows, dst / "zoo_summary.csv")
-    write_card(entry)
-    return path
+    write_summary(rows, dst / "zoo_summary.csv")
+    card = write_card(entry, work)
+    if update_entry:
+        shipped = entry.folder / "evaluation"
+        shipped.mkdir(exist_ok=True)
+        for src in sorted(dst.iterdir()):
+            _copy(src, shipped / src.name)
+        card = write_card(entry)
+    return card
 
 
 def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
@@ -118,13 +129,14 @@ def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
     model = entry.folder / entry.model_name()
     if not model.is_file():
         raise FileNotFoundError(f"{model}: the entry has no shipped model (qkf zoo train)")
-    if best.exists():
-        shutil.rmtree(best)
-    best.mkdir()
-    for name in (entry.model_name(), "config.yaml", "card.md"):
+    best.mkdir(exist_ok=True)
+    # only what an earlier promote wrote goes: best/ holds nothing else of anyone's
+    for name in (*PROMOTED, "model.zip", "model.npz"):
+        (best / name).unlink(missing_ok=True)
+    for name in (entry.model_name(), *PROMOTED):
         if (entry.folder / name).is_file():
             _copy(entry.folder / name, best / name)
-    (best / "SOURCE").write_text(f"{entry.name}\n")
+    atomic_write_bytes(best / "SOURCE", f"{entry.name}\n".encode())
     return best
 
 

@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 
-from qkf.core.cli_support import SetOption, check_out, fail, out
+from qkf.core.cli_support import OverwriteOption, SetOption, fail, out, out_dir
 
 
 def align_cmd(
@@ -22,7 +22,12 @@ def align_cmd(
             help="Sensors and settings: a preset name (alignment_three_sensors) or a YAML path."
         ),
     ],
-    out_dir: Annotated[Path, typer.Option("--out", help="Output directory (replaced whole).")],
+    out_path: Annotated[
+        str,
+        typer.Option(
+            "--out", help="Output directory: new, empty or (--overwrite) an earlier align run."
+        ),
+    ],
     data: Annotated[
         Path | None,
         typer.Option(
@@ -33,6 +38,7 @@ def align_cmd(
     ] = None,
     set_: SetOption = None,
     plot: Annotated[bool, typer.Option(help="Write residuals.png.")] = True,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Alignment calibration of vector sensors, attitude-independent.
 
@@ -52,7 +58,7 @@ def align_cmd(
         cfg = load_config(config, list(set_ or []))
     except ConfigError as exc:
         raise fail(str(exc)) from None
-    check_out(out_dir)
+    folder = out_dir(out_path, "align", overwrite)
     truth = None
     if data is not None:
         try:
@@ -72,9 +78,9 @@ def align_cmd(
     except SolveError as exc:
         raise fail(f"{data if data is not None else config}: {exc}", code=1) from None
     try:
-        write_outputs(out_dir, cfg, obs, sol, truth, source, plot=plot)
+        write_outputs(folder, cfg, obs, sol, truth, source, plot=plot)
     except OutputError as exc:
-        raise fail(f"--out: {exc}") from None
-    text = (out_dir / "summary.md").read_text(encoding="utf-8")
+        raise fail(f"--out: {exc}", code=1) from None
+    text = (folder / "summary.md").read_text(encoding="utf-8")
     out.print(text, soft_wrap=True, markup=False, highlight=False)
-    out.print(f"wrote {out_dir}/")
+    out.print(f"wrote {folder}/")

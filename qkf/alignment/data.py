@@ -3,11 +3,13 @@
 ``DATA.csv`` has a header and one row per sensor observation: ``t_s, sensor, w_x, w_y, w_z,
 r_x, r_y, r_z`` — the time (s), the sensor's name, the measured unit vector in the body frame
 (through the nominal mounting) and the known unit reference vector in the inertial frame. Other
-columns are ignored. Rows need not be sorted; observations of different sensors at the same
-``t_s`` form the pairs. A file is refused — naming the file, the row (1-based data row and the
-line of the file) and the column — when a column is missing, a value is not a finite number, a
-sensor is not in the config, a vector's norm is off 1 by more than the tolerance, or a sensor of
-the config is never observed at the same time as another sensor.
+columns are ignored. Rows are in time order, ``t_s`` non-decreasing (the rows of one epoch,
+one per observation, share a ``t_s``); observations of different sensors at the same ``t_s``
+form the pairs. A file is refused — naming the file, the row (1-based data row and the line of
+the file) and the column — when a column is missing or appears twice, a value is not a finite
+number, a time is earlier than the row before it (by more than the time tolerance), a sensor is
+not in the config, a vector's norm is off 1 by more than the tolerance, or a sensor of the
+config is never observed at the same time as another sensor.
 """
 
 from __future__ import annotations
@@ -98,6 +100,16 @@ def read_data(
             if not np.isfinite(v):
                 raise DataError(f"{where(p, k)}, column {col}: non-finite value {text!r}")
             values[j, c] = v
+        # Time order, checked row by row so the first bad row in the file is the one named.
+        # Non-decreasing, not increasing: every observation of an epoch is a row of its own.
+        # Within the tolerance, rows belong to one epoch and may come in either order.
+        if j > 0 and values[j, 0] < values[j - 1, 0] - time_tolerance_s:
+            prev_k, prev = records[j - 1]
+            raise DataError(
+                f"{where(p, k)}, column t_s: time {rec[0]} is earlier than {prev[0]} "
+                f"(row {prev_k}); rows must be in time order (t_s non-decreasing: the rows of "
+                "one epoch share a t_s)"
+            )
     t, w, r = values[:, 0], values[:, 1:4], values[:, 4:7]
     for label, vec in (("w", w), ("r", r)):
         norm = np.linalg.norm(vec, axis=1)

@@ -19,6 +19,7 @@ from qkf.alignment.data import Observations, write_data_text
 from qkf.alignment.solve import Direction, Solution
 from qkf.core import units
 from qkf.core.io import atomic_write_bytes, atomic_write_text, csv_text, staged_directory
+from qkf.core.manifest import manifest, write_manifest
 
 ALIGNMENT_COLUMNS = (
     "sensor",
@@ -268,7 +269,8 @@ def write_outputs(
     source: str,
     plot: bool = True,
 ) -> list[Path]:
-    """Render every file, then write the folder atomically (replacing ``out_dir`` whole)."""
+    """Render every file, then write the folder atomically with its ``run.json`` (kind
+    ``align``), replacing ``out_dir`` whole."""
     files: dict[str, str | bytes] = {
         "alignment.csv": alignment_csv(sol),
         "observability.csv": observability_csv(sol),
@@ -284,4 +286,5 @@ def write_outputs(
                 atomic_write_bytes(stage / name, content)
             else:
                 atomic_write_text(stage / name, content)
-    return [Path(out_dir) / name for name in files]
+        write_manifest(stage, manifest("align", cfg.model_dump(mode="json"), source=source))
+    return [Path(out_dir) / name for name in (*files, "run.json")]

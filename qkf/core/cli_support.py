@@ -4,6 +4,9 @@ Each estimation problem may add its own command group (a ``typer.Typer`` in
 ``qkf/<problem>/cli.py``, mounted by :mod:`qkf.cli`); these helpers keep their messages and
 exit codes the same as the top-level commands': 0 success, 2 bad input (config, data file,
 option), 1 anything else.
+
+``--out`` options are taken as text (``str``), not ``Path``: a ``Path`` turns ``''`` into ``.``
+and drops the trailing slash of ``newdir/``, and both must be refused, not reinterpreted.
 """
 
 from __future__ import annotations
@@ -22,6 +25,14 @@ SetOption = Annotated[
     list[str] | None,
     typer.Option("--set", help="Override a config value: dotted.key=value (YAML value)."),
 ]
+OverwriteOption = Annotated[
+    bool,
+    typer.Option(
+        "--overwrite",
+        help="Replace an earlier run of this command in --out (a folder holding anything else "
+        "is never replaced).",
+    ),
+]
 
 
 def fail(msg: str, code: int = 2) -> typer.Exit:
@@ -31,11 +42,32 @@ def fail(msg: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
-def check_out(path: Path, kind: str = "dir") -> None:
-    """Refuse an unusable ``--out`` (a file for a folder, a missing parent): exit 2."""
-    from qkf.core.io import OutputError, check_output_dir, check_output_file
+def out_dir(
+    raw: str | Path, kind: str, overwrite: bool | None = False, option: str = "--out"
+) -> Path:
+    """The output folder of a command writing a run of ``kind`` (``run.json``), checked before
+    any work (exit 2): see :func:`qkf.core.io.check_output_dir`. ``overwrite`` None: an earlier
+    run of the same kind is replaced without being asked (work folders a command owns)."""
+    from qkf.core.io import OutputError, check_output_dir
 
     try:
-        (check_output_dir if kind == "dir" else check_output_file)(path)
+        return check_output_dir(raw, kind, overwrite)
     except OutputError as exc:
-        raise fail(f"--out: {exc}") from None
+        raise fail(f"{option}: {exc}") from None
+
+
+def out_file(raw: str | Path, header: str | None = None, option: str = "--out") -> Path:
+    """The output file of a command, checked before any work (exit 2): see
+    :func:`qkf.core.io.check_output_file`; ``header``: the first line the command writes."""
+    from qkf.core.io import OutputError, check_output_file
+
+    try:
+        return check_output_file(raw, header)
+    except OutputError as exc:
+        raise fail(f"{option}: {exc}") from None
+
+
+def seed_option(seed: int | None) -> None:
+    """Refuse a seed outside ``[0, 2**63)`` (numpy's ``SeedSequence`` range used here)."""
+    if seed is not None and not 0 <= seed < 2**63:
+        raise fail("--seed must be between 0 and 2**63 - 1")

@@ -23,10 +23,19 @@ import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any, TypeVar
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    Progress,
+    ProgressColumn,
+    TaskProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
+from rich.table import Column
 
 R = TypeVar("R")
 Task = Callable[[np.ndarray], R]
@@ -101,17 +110,96 @@ def run_chunks(
     return BACKENDS[backend](task, chunks, workers, address)
 
 
-@contextmanager
-def progress_bar(total: int, label: str, enabled: bool = True) -> Iterator[Callable[[int], None]]:
-    """A rich progress bar over trials; yields ``advance(n)``."""
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("trials"),
+class ProgressBar:
+    """What a run shows while it works: one main task (advanced by calling the bar) and, below
+    it, *stages* with their own count (e.g. a method's tuning runs, :func:`progress_stage`).
+
+    Every row has the same five columns, sized for an 80-column terminal: a short description,
+    the bar, the percentage, the elapsed time and an *info* field (what is being done now, or
+    ``done/total unit``). A disabled bar (``--quiet``) accepts every call and shows nothing.
+    """
+
+    def __init__(self, progress: Progress, total: float, label: str, unit: str) -> None:
+        self._progress = progress
+        self._unit = unit
+        self._total = total
+        self._done = 0.0
+        self._noted = False  # an explicit note replaces the automatic "done/total unit"
+        self._main = progress.add_task(label, total=total, info=self._count())
+
+    def _count(self) -> str:
+        return f"{self._done:g}/{self._total:g} {self._unit}"
+
+    def __call__(self, n: float = 1) -> None:
+        """Advance the main task by ``n`` (of the ``total`` it was created with)."""
+        self._done += n
+        if self._noted:
+            self._progress.update(self._main, advance=n)
+        else:
+            self._progress.update(self._main, advance=n, info=self._count())
+
+    def note(self, text: str | None) -> None:
+        """Show ``text`` in the main task's info field (None: back to ``done/total unit``)."""
+        self._noted = text is not None
+        self._progress.update(self._main, info=self._count() if text is None else text)
+
+    def stage(self, description: str, total: int, unit: str = "runs") -> Callable[[int], None]:
+        """A new row with its own count; returns ``advance(n)`` for it."""
+        done = [0]
+        task = self._progress.add_task(description, total=total, info=f"0/{total} {unit}")
+
+        def advance(n: int = 1) -> None:
+            done[0] += n
+            self._progress.update(task, advance=n, info=f"{done[0]}/{total} {unit}")
+
+        return advance
+
+
+_ACTIVE: ContextVar[ProgressBar | None] = ContextVar("qkf_progress_bar", default=None)
+
+
+def progress_stage(description: str, total: int, unit: str = "runs") -> Callable[[int], None]:
+    """A counted stage below the progress bar of the run in progress, if any; returns
+    ``advance(n)`` (a no-op outside a run). For one-off work a method does before the trials,
+    such as tuning in its ``prepare``, whose signature has no room for a progress callback."""
+    bar = _ACTIVE.get()
+    if bar is None:
+        return _ignore
+    return bar.stage(description, total, unit)
+
+
+def _ignore(n: int = 1) -> None:
+    """``advance`` of a stage outside any run: nothing to show."""
+
+
+def _progress_columns() -> list[ProgressColumn]:
+    # fixed widths: the description and the info field are ellipsized rather than wrapped, so a
+    # row stays one readable line at 80 columns (a 10-method label list used to collapse it)
+    return [
+        TextColumn(
+            "[bold]{task.description}",
+            table_column=Column(no_wrap=True, overflow="ellipsis", max_width=24),
+        ),
+        BarColumn(bar_width=14),
+        TaskProgressColumn(),
         TimeElapsedColumn(),
-        disable=not enabled,
-        transient=False,
-    ) as bar:
-        task_id = bar.add_task(label, total=total)
-        yield lambda n: bar.advance(task_id, n)
+        TextColumn(
+            "{task.fields[info]}",
+            table_column=Column(no_wrap=True, overflow="ellipsis", max_width=34),
+        ),
+    ]
+
+
+@contextmanager
+def progress_bar(
+    total: float, label: str, enabled: bool = True, unit: str = "trials"
+) -> Iterator[ProgressBar]:
+    """A rich progress bar (:class:`ProgressBar`) over ``total`` units of work; calling it
+    advances it. While it is open, :func:`progress_stage` adds rows to it."""
+    with Progress(*_progress_columns(), disable=not enabled, transient=False) as progress:
+        bar = ProgressBar(progress, total, label, unit)
+        token = _ACTIVE.set(bar)
+        try:
+            yield bar
+        finally:
+            _ACTIVE.reset(token)

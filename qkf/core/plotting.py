@@ -9,9 +9,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
 
-def figure_png(fig: plt.Figure, dpi: int = 120) -> bytes:
+def figure_png(fig: Figure, dpi: int = 120) -> bytes:
     """The figure as PNG bytes; the figure is closed."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
@@ -19,4 +20,4 @@ def figure_png(fig: plt.Figure, dpi: int = 120) -> bytes:
     return buf.getvalue()
 
 
-__all__ = ["figure_png", "plt"]
+__all__ = ["Figure", "figure_png", "plt"]

@@ -13,7 +13,15 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from qkf.core.cli_support import SetOption, check_out, fail, out
+from qkf.core.cli_support import (
+    OverwriteOption,
+    SetOption,
+    fail,
+    out,
+    out_dir,
+    out_file,
+    seed_option,
+)
 from qkf.core.config import ConfigError
 
 if TYPE_CHECKING:
@@ -50,47 +58,47 @@ def _report_separability(cfg: GyrosConfig) -> None:
 @app.command("features")
 def features_cmd(
     config: ConfigArgument,
-    out_file: Annotated[Path, typer.Option("--out", help="CSV file to write.")],
+    out_path: Annotated[str, typer.Option("--out", help="CSV file to write.")],
     set_: SetOption = None,
 ) -> None:
     """Three-cross feature value per gyro: design geometry, and with the nominal errors left
     uncompensated (gyro, feature_nominal, feature_with_errors)."""
     cfg = _load(config, set_)
-    check_out(out_file, "file")
+    from qkf.redundant_gyros.report import FEATURE_COLUMNS, write_features
+
+    path = out_file(out_path, ",".join(FEATURE_COLUMNS))
     import numpy as np
 
     from qkf.redundant_gyros.geometry import build_unit
-    from qkf.redundant_gyros.report import write_features
     from qkf.redundant_gyros.threecross import feature_table
 
     unit = build_unit(cfg)
     rows = feature_table(unit, cfg.features.fault_deg_s, np.asarray(cfg.features.body_rate_deg_s))
-    write_features(out_file, rows)
+    write_features(path, rows)
     for r in rows:
         out.print(f"{r.gyro:>4}  {r.nominal:10.4f}  {r.with_errors:10.4f}", highlight=False)
     for line in unit.separability().lines():
         out.print(f"note: {line}", highlight=False, markup=False)
-    out.print(f"wrote {out_file}")
+    out.print(f"wrote {path}")
 
 
 @app.command("run")
 def run_cmd(
     config: ConfigArgument,
-    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")],
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")],
     data: Annotated[
         Path | None,
         typer.Option("--data", help="Recorded readings: t_s and one column per gyro id, deg/s."),
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Seed of the simulation (run.seed).")] = None,
     set_: SetOption = None,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Per epoch: feature, isolated gyro (three-cross, GLT), output model and rate; then the UKF
     calibration of the isolated gyro. Writes fdi.csv, calibration.csv, summary.md, plots."""
     cfg = _load(config, set_)
-    if seed is not None and not 0 <= seed < 2**63:
-        raise fail("--seed must be between 0 and 2**63 - 1")
-    check_out(out_dir)
-    _report_separability(cfg)
+    seed_option(seed)
+    folder = out_dir(out_path, "gyros-run", overwrite)
     from qkf.redundant_gyros.data import DataError, load_readings
     from qkf.redundant_gyros.pipeline import run
     from qkf.redundant_gyros.report import write_run
@@ -104,16 +112,17 @@ def run_cmd(
         source = f"recorded ({data})"
     else:
         source = f"simulated (seed {cfg.run.seed if seed is None else seed})"
+    _report_separability(cfg)  # only once the input is known to be usable
     res = run(cfg, readings, seed)
-    write_run(res, out_dir, source, list(sys.argv))
-    out.print((out_dir / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
-    out.print(f"wrote {out_dir}/")
+    write_run(res, folder, source, list(sys.argv))
+    out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {folder}/")
 
 
 @app.command("bench")
 def bench_cmd(
     config: ConfigArgument,
-    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path(
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = (
         "results/gyros_bench"
     ),
     trials: Annotated[
@@ -122,6 +131,7 @@ def bench_cmd(
     seed: Annotated[int | None, typer.Option(help="Seed (bench.seed).")] = None,
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Three-cross vs GLT over fault kinds and sizes (σ units) with bootstrap intervals, and the
     UKF's accuracy and NEES over trials: bench.csv, ukf.csv, summary.md, bench.png, ukf.png."""
@@ -130,14 +140,19 @@ def bench_cmd(
     cfg = _load(config, set_)
     if trials is not None and not 1 <= trials <= MAX_TRIALS:
         raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
-    if seed is not None and not 0 <= seed < 2**63:
-        raise fail("--seed must be between 0 and 2**63 - 1")
-    check_out(out_dir)
+    seed_option(seed)
+    from qkf.redundant_gyros.config import check_workload
+
+    try:
+        check_workload(cfg, trials)
+    except ConfigError as exc:
+        raise fail(f"{config}: {exc}") from None
+    folder = out_dir(out_path, "gyros-bench", overwrite)
     _report_separability(cfg)
     from qkf.redundant_gyros.bench import run_bench
     from qkf.redundant_gyros.report import write_bench
 
     res = run_bench(cfg, trials, seed, progress=not quiet)
-    write_bench(res, out_dir, list(sys.argv))
-    out.print((out_dir / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
-    out.print(f"wrote {out_dir}/")
+    write_bench(res, folder, list(sys.argv))
+    out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {folder}/")

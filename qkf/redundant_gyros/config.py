@@ -8,6 +8,7 @@ machinery (YAML, ``--set`` overrides, messages naming file and field) is :mod:`q
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -21,6 +22,7 @@ from qkf.core.config import (
     PositiveFloat,
     StrictModel,
     load_model,
+    workload_error,
 )
 
 GyroId = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]*$", max_length=32)]
@@ -29,6 +31,19 @@ Vector3 = tuple[float, float, float]
 MAX_EPOCHS = 10_000_000
 """Upper bound on ``duration_s / dt_s`` (a typo such as 1e30 would exhaust memory)."""
 MAX_TRIALS = 10_000_000
+MAX_TRIAL_EPOCHS = 10_000_000_000
+"""Upper bound on the trial-epochs of ``qkf gyros bench`` (:func:`check_workload`): trials ×
+bench epochs × fault groups (kinds × sizes). A trial-epoch costs about 0.5 to 0.9 µs, the
+simulation included (docs/redundant_gyros.md, "Speed"), so 10¹⁰ is a few hours; 10⁷ trials of
+10⁵ epochs would take years. Only counts per trial are kept, so this bounds time, not memory.
+"""
+MAX_CHUNK_TRIAL_EPOCHS = 20_000_000
+"""Upper bound on the trials simulated at once × their epochs: the memory of one chunk of the
+bench (``bench.chunk_trials``) and of the bench's UKF accuracy run (``bench.ukf_trials``, all at
+once, with a 4 × 4 covariance per trial-epoch). A bench chunk takes about 250 bytes per
+trial-epoch with five gyros (measured; more with more gyros), so about 5 GB at the limit; the
+UKF, at about 300 µs per step, would run for about two hours. Twice :data:`MAX_EPOCHS`, so
+every accepted scenario runs with small enough chunks."""
 PRESET_PREFIX = "five_gyros"
 """The presets of this problem share this prefix (listed in messages)."""
 
@@ -344,6 +359,74 @@ class GyrosConfig(StrictModel):
             raise ValueError("calibration.triad: must not contain the calibrated gyro")
         return self
 
+    @model_validator(mode="after")
+    def _workload(self) -> GyrosConfig:
+        # too big a bench is refused on load, before any work; the command line checks its
+        # --trials, and the UKF run, with check_workload(cfg, trials)
+        try:
+            _check_bench(self, None)
+        except ConfigError as exc:
+            raise workload_error(exc) from None
+        return self
+
+
+def epochs_of(duration_s: float, dt_s: float) -> int:
+    """Epochs of a run, as :func:`qkf.redundant_gyros.scenario.epochs` makes them (that module
+    imports this one)."""
+    return max(2, math.floor(duration_s / dt_s + 1e-9))
+
+
+def check_workload(cfg: GyrosConfig, trials: int | None = None) -> None:
+    """Refuse a ``qkf gyros bench`` too big to finish: bench epochs above :data:`MAX_EPOCHS`,
+    its trial-epochs above :data:`MAX_TRIAL_EPOCHS`, or more than
+    :data:`MAX_CHUNK_TRIAL_EPOCHS` trial-epochs at once (a bench chunk, or the UKF accuracy run
+    over the config's scenario). Raises :class:`ConfigError` naming the fields, the product and
+    the limit.
+
+    ``trials``: the bench's trials (the command line's ``--trials``); ``None`` means
+    ``bench.trials``. Loading a config checks all but the UKF run (which only the bench does,
+    so a long scenario stays usable by the other commands).
+    """
+    _check_bench(cfg, trials)
+    b = cfg.bench
+    epochs = epochs_of(cfg.scenario.duration_s, cfg.scenario.dt_s)
+    if b.ukf_trials * epochs > MAX_CHUNK_TRIAL_EPOCHS:
+        raise ConfigError(
+            f"bench.ukf_trials × epochs (scenario.duration_s / scenario.dt_s) = "
+            f"{b.ukf_trials:,} × {epochs:,} = {b.ukf_trials * epochs:.3g} trial-epochs, all at "
+            f"once; at most {MAX_CHUNK_TRIAL_EPOCHS:.0e} (the UKF run's memory and time): set "
+            f"bench.ukf_trials to {MAX_CHUNK_TRIAL_EPOCHS // epochs:,} or less"
+        )
+
+
+def _check_bench(cfg: GyrosConfig, trials: int | None) -> None:
+    """The checks of :func:`check_workload` on the ``bench`` section's own runs."""
+    b = cfg.bench
+    n_trials = b.trials if trials is None else trials
+    who = "bench.trials" if trials is None or trials == b.trials else "--trials"
+    epochs = epochs_of(b.duration_s, cfg.scenario.dt_s)
+    what = "epochs (bench.duration_s / scenario.dt_s)"
+    if epochs > MAX_EPOCHS:
+        raise ConfigError(f"{what} = {epochs:.3g}; at most {MAX_EPOCHS:,}")
+    groups = len(b.kinds) * len(b.sizes_sigma)
+    total = n_trials * epochs * groups
+    if total > MAX_TRIAL_EPOCHS:
+        raise ConfigError(
+            f"{who} × {what} × fault groups (bench.kinds × bench.sizes_sigma) = "
+            f"{n_trials:,} × {epochs:,} × {groups} = {total:.3g} trial-epochs; at most "
+            f"{MAX_TRIAL_EPOCHS:.0e} (run time grows with it): lower {who} or bench.duration_s"
+        )
+    chunk = min(b.chunk_trials, n_trials)
+    if chunk * epochs > MAX_CHUNK_TRIAL_EPOCHS:
+        size = (
+            "bench.chunk_trials" if chunk == b.chunk_trials else f"min(bench.chunk_trials, {who})"
+        )
+        raise ConfigError(
+            f"{size} × {what} = {chunk:,} × {epochs:,} = {chunk * epochs:.3g} trial-epochs in "
+            f"one chunk; at most {MAX_CHUNK_TRIAL_EPOCHS:.0e} (the memory of a chunk's arrays): "
+            f"set bench.chunk_trials to {MAX_CHUNK_TRIAL_EPOCHS // epochs:,} or less"
+        )
+
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> GyrosConfig:
     """Read and validate a gyros config — a path or a preset name (``five_gyros``) — then apply
@@ -368,4 +451,4 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return cfg
 
 
-__all__ = ["ConfigError", "Fault", "GyrosConfig", "load_config"]
+__all__ = ["ConfigError", "Fault", "GyrosConfig", "check_workload", "load_config"]

@@ -2,24 +2,25 @@
 "Recorded data").
 
 The file has a header with ``t_s`` and one column per gyro id of the config (deg/s, the raw
-readings ``m_i``); other columns are ignored. A missing column, a time that does not increase,
-or a value that is not a finite number is refused with a :class:`DataError` naming the file,
-the line and the column.
+readings ``m_i``); other columns are ignored. The file is opened by
+:func:`qkf.core.csvfile.read_table` (a directory, a missing file, non-UTF-8 or non-CSV text are
+refused there). A missing column, a needed column that appears twice, fewer than two rows, a
+time that does not increase, or a value that is not a finite number is refused with a
+:class:`DataError` naming the file, the line and the column; values are quoted as the file
+writes them.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
+from qkf.core.csvfile import DataFileError, read_table, refuse_duplicates
 from qkf.redundant_gyros.scenario import GyroData
 
-
-class DataError(ValueError):
-    """A data file that cannot be used; the message names the file, line and column."""
+DataError = DataFileError  # this problem's name for it (one class for every data file)
 
 
 def _number(text: str) -> float | None:
@@ -33,29 +34,18 @@ def _number(text: str) -> float | None:
 def load_readings(path: str | Path, ids: tuple[str, ...] | list[str]) -> GyroData:
     """Readings of one recorded trial: ``GyroData`` with B = 1 and no truth."""
     p = Path(path)
-    if not p.is_file():
-        raise DataError(f"{p}: no such data file")
-    try:
-        with p.open(newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{p}: not a text file (UTF-8): {exc.reason}") from None
-    except csv.Error as exc:
-        raise DataError(f"{p}: not a CSV file: {exc}") from None
-    if not rows:
-        raise DataError(f"{p}: empty file (expected a header with t_s and {', '.join(ids)})")
-    header = [h.strip() for h in rows[0]]
     wanted = ["t_s", *ids]
+    header, records = read_table(p, wanted)
     for name in wanted:
         if name not in header:
             raise DataError(f"{p}: line 1: missing column {name!r} (need {', '.join(wanted)})")
-        if header.count(name) > 1:
-            raise DataError(f"{p}: line 1: column {name!r} appears twice")
+    refuse_duplicates(p, header, wanted)
     cols = [header.index(name) for name in wanted]
-    body = [(line, r) for line, r in enumerate(rows[1:], start=2) if any(c.strip() for c in r)]
+    body = [(row + 1, r) for row, r in records]  # file line = data row + 1 (the header)
     if len(body) < 2:
-        raise DataError(f"{p}: needs at least two rows of readings")
+        raise DataError(f"{p}: needs at least two rows of readings (has {len(body)})")
     values = np.empty((len(body), len(wanted)))
+    texts = []  # t_s as written, for messages (a numpy scalar's repr is np.float64(…))
     for row, (line, r) in enumerate(body):
         for k, (name, c) in enumerate(zip(wanted, cols, strict=True)):
             text = r[c].strip() if c < len(r) else ""
@@ -64,9 +54,10 @@ def load_readings(path: str | Path, ids: tuple[str, ...] | list[str]) -> GyroDat
                 what = "empty" if not text else f"not a finite number ({text!r})"
                 raise DataError(f"{p}: line {line}: column {name}: {what}")
             values[row, k] = x
+        texts.append(r[cols[0]].strip())
         if row > 0 and not values[row, 0] > values[row - 1, 0]:
             raise DataError(
                 f"{p}: line {line}: column t_s: time does not increase "
-                f"({values[row, 0]!r} after {values[row - 1, 0]!r})"
+                f"({texts[row]} after {texts[row - 1]} on line {body[row - 1][0]})"
             )
     return GyroData(t=values[:, 0].copy(), meas=values[None, :, 1:].copy(), rate=None, coeffs=None)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from qkf.core.cli_support import SetOption, check_out, fail, out
+from qkf.core.cli_support import OverwriteOption, SetOption, fail, out, out_dir, seed_option
 
 if TYPE_CHECKING:
     from qkf.core.least_squares import IterationInfo
@@ -24,7 +24,7 @@ def fuse_cmd(
     config: Annotated[
         str, typer.Argument(help="Fusion config: a preset name (sca_acc_fusion) or a YAML path.")
     ],
-    out_dir: Annotated[Path, typer.Option("--out", help="Output directory.")],
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")],
     sca: Annotated[
         Path | None, typer.Option("--sca", help="Star camera CSV: t_s, q_x, q_y, q_z, q_w.")
     ] = None,
@@ -37,12 +37,14 @@ def fuse_cmd(
     ] = None,
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Star-camera + angular-accelerometer attitude fusion (least squares per arc).
 
     Variance components and Huber weights as GROOPS. Without --sca/--acc, simulate from the
     config and compare with the truth. Writes fused.csv, variance_components.csv, solution.csv,
-    epoch_sigma.csv, acc_calibrated.csv, summary.md and plots; --out is replaced whole.
+    epoch_sigma.csv, acc_calibrated.csv, summary.md, run.json and plots; --out must be new,
+    empty or (with --overwrite) an earlier fuse run, replaced whole.
     """
     from qkf.core.config import ConfigError
     from qkf.core.io import OutputError
@@ -50,14 +52,13 @@ def fuse_cmd(
 
     if (sca is None) != (acc is None):
         raise fail("give both --sca and --acc (or neither, to simulate)")
-    if seed is not None and not 0 <= seed < 2**63:
-        raise fail("--seed must be between 0 and 2**63 - 1")
+    seed_option(seed)
     sets = list(set_ or []) + ([f"simulation.seed={seed}"] if seed is not None else [])
     try:
         cfg = load_config(config, sets)
     except ConfigError as exc:
         raise fail(str(exc)) from None
-    check_out(out_dir)
+    folder = out_dir(out_path, "fuse", overwrite)
 
     from qkf.sca_fusion.data import DataError, read_acc, read_sca
 
@@ -66,6 +67,10 @@ def fuse_cmd(
         try:
             tol = cfg.data.time_match_tolerance_s
             data = (read_sca(sca, cfg.data.quaternion_norm_tolerance, tol), read_acc(acc, tol))
+            from qkf.sca_fusion.data import check_pair
+
+            # rows, overlap, coverage: before any work
+            check_pair(*data, cfg, cfg.data.min_overlap_fraction)
         except DataError as exc:
             raise fail(str(exc)) from None
 
@@ -80,13 +85,14 @@ def fuse_cmd(
         raise fail(f"the normal equations of an arc cannot be solved: {exc}", code=1) from None
     if not run.solutions:
         raise fail("no arc to fuse: " + ("; ".join(run.skipped) or "no epochs"))
+    source = "simulated" if data is None else f"recorded ({sca}, {acc})"
     try:
-        write_outputs(cfg, run, out_dir)
+        write_outputs(cfg, run, folder, source)
     except OutputError as exc:
         raise fail(f"--out: {exc}", code=1) from None
-    text = (out_dir / "summary.md").read_text()
+    text = (folder / "summary.md").read_text()
     out.print(text, soft_wrap=True, markup=False, highlight=False)
-    out.print(f"fused {len(run.solutions)} arc(s) in {run.runtime_s:.2f} s; wrote {out_dir}/")
+    out.print(f"fused {len(run.solutions)} arc(s) in {run.runtime_s:.2f} s; wrote {folder}/")
 
 
 class _IterationBar:

@@ -76,6 +76,9 @@ class DataConfig(StrictModel):
 
     quaternion_norm_tolerance: PositiveFloat = 1.0e-5
     time_match_tolerance_s: PositiveFloat = 1.0e-5
+    # the least share of each file's time span the other must cover (qkf.sca_fusion.data
+    # check_pair): below half, most of the output would rest on one instrument alone
+    min_overlap_fraction: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5
 
 
 class Oscillation(StrictModel):

@@ -3,8 +3,10 @@
 ``SCA.csv``: ``t_s, q_x, q_y, q_z, q_w`` (body → inertial, scalar last); ``ACC.csv``:
 ``t_s, dw_x, dw_y, dw_z`` (rad/s², body). Other columns are ignored. A file is refused — with
 its path, the row (1-based data row, and the line of the file) and the column — when a column
-is missing, a value is not a finite number, time does not increase, or a quaternion's norm
-differs from 1 by more than the tolerance. Nothing is computed before both files pass.
+is missing or appears twice, a value is not a finite number, time does not increase, or a
+quaternion's norm differs from 1 by more than the tolerance. Then :func:`check_pair` judges the
+two files together: each needs enough epochs for one arc, and the two must cover the same time
+(see its docstring for the rules). Nothing is computed before both files pass.
 
 The epochs of the two files are merged (within a matching tolerance) into one grid, which is
 split into arcs wherever the spacing departs from the nominal step.
@@ -19,6 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from qkf.core.csvfile import DataFileError, read_records, where
+from qkf.sca_fusion.config import FusionConfig
 from qkf.sca_fusion.differentiation import sign_continuous
 
 SCA_COLUMNS = ("t_s", "q_x", "q_y", "q_z", "q_w")
@@ -95,6 +98,105 @@ def read_sca(path: str | Path, norm_tolerance: float, time_tolerance_s: float = 
 def read_acc(path: str | Path, time_tolerance_s: float = 0.0) -> Series:
     """Angular accelerations (rad/s², body)."""
     return read_series(path, ACC_COLUMNS, time_tolerance_s)
+
+
+# The default least share of each file's time span the other file must cover (see check_pair;
+# the config's data.min_overlap_fraction). Half: below it most of the output would come from
+# one instrument alone, which is what a wrong file (another day, another satellite) or a wrong
+# time unit looks like, not a fusion.
+MIN_OVERLAP_FRACTION = 0.5
+
+# Time units a t_s column is commonly written in by mistake, as powers of ten of the second: a
+# refused pair where one file spans about 10**k times what the other spans blames that unit.
+_UNITS = ((3, "milliseconds"), (6, "microseconds"), (9, "nanoseconds"))
+
+
+def _num(x: float) -> str:
+    """A plain number for messages: ``1``, ``0.1``, ``3599000``, never ``np.float64(…)``."""
+    return f"{float(x):.12g}"
+
+
+def _span(s: Series) -> str:
+    return f"{s.path}: t_s {_num(s.t[0])} to {_num(s.t[-1])} s"
+
+
+def _duration(s: Series) -> float:
+    return float(s.t[-1] - s.t[0])
+
+
+def _unit_suspect(big: Series, small: Series) -> tuple[int, str] | None:
+    """``(k, unit)`` when ``big`` spans about 10**k times what ``small`` spans (k = 3, 6, 9:
+    milli-, micro-, nanoseconds), else None. Only consulted for a pair already refused, so the
+    band (a factor 10**0.1 ≈ 1.26 either way) decides the wording, never acceptance."""
+    a, b = _duration(big), _duration(small)
+    if a <= 0.0 or b <= 0.0:
+        return None
+    ratio = float(np.log10(a / b))
+    for k, unit in _UNITS:
+        if abs(ratio - k) < 0.1:
+            return k, unit
+    return None
+
+
+def check_pair(
+    sca: Series,
+    acc: Series,
+    cfg: FusionConfig,
+    min_overlap_fraction: float = MIN_OVERLAP_FRACTION,
+) -> None:
+    """Refuse a star-camera/accelerometer pair the fusion cannot use, naming the file and the
+    problem (raises :class:`DataError`); call it after both files have been read.
+
+    Rules, in order:
+
+    - rows: each file has at least the epochs of the shortest arc the fusion solves,
+      ``max(arcs.min_epochs, estimator.interpolation_degree + 1)`` (shorter arcs are skipped,
+      so fewer rows cannot give a fused arc with that instrument in it);
+    - overlap: the two time spans share more than ``data.time_match_tolerance_s`` (s);
+    - coverage: the shared time is at least ``min_overlap_fraction`` of each file's span.
+
+    When the pair fails the overlap or coverage rule and one file spans about 10³, 10⁶ or 10⁹
+    times what the other spans, the message blames that file's time unit instead (``t_s`` in
+    milli-, micro- or nanoseconds).
+    """
+    need = max(cfg.arcs.min_epochs, cfg.estimator.interpolation_degree + 1)  # as run_fusion
+    for s, what in ((sca, "star-camera"), (acc, "accelerometer")):
+        if s.t.size < need:
+            raise DataError(
+                f"{s.path}: {s.t.size} data row{'s' if s.t.size != 1 else ''}; the fusion "
+                f"needs at least {need} {what} epochs, the shortest arc it solves (the larger "
+                "of arcs.min_epochs and estimator.interpolation_degree + 1)"
+            )
+    shared = min(float(sca.t[-1]), float(acc.t[-1])) - max(float(sca.t[0]), float(acc.t[0]))
+    disjoint = shared <= cfg.data.time_match_tolerance_s
+    # each file is judged by the share of the OTHER file's span it covers; the worse is named
+    fraction, s, other, name = min(
+        (max(shared, 0.0) / _duration(sca), acc, sca, "star camera"),
+        (max(shared, 0.0) / _duration(acc), sca, acc, "accelerometer"),
+        key=lambda x: x[0],
+    )
+    if not disjoint and fraction >= min_overlap_fraction:
+        return
+    big, small = (sca, acc) if _duration(sca) >= _duration(acc) else (acc, sca)
+    suspect = _unit_suspect(big, small)
+    if suspect is not None:  # the longer file is the one at fault
+        k, unit = suspect
+        raise DataError(
+            f"{big.path}: column t_s: spans {_num(_duration(big))} s, about 10^{k} times the "
+            f"{_num(_duration(small))} s of {small.path}: are its times in {unit}? t_s must be "
+            f"seconds ({_span(big)}; {_span(small)})"
+        )
+    if disjoint:
+        raise DataError(
+            f"{sca.path} and {acc.path} do not overlap in time ({_span(sca)}; {_span(acc)}): "
+            "the star camera and the accelerometer must observe the same time"
+        )
+    raise DataError(
+        f"{s.path}: covers {_num(shared)} s of the {_num(_duration(other))} s the {name} "
+        f"covers ({100 * fraction:.3g} %; {_span(s)}; {_span(other)}); each file must cover at "
+        f"least {100 * min_overlap_fraction:.3g} % of the other's time span (crop both to "
+        "their common time)"
+    )
 
 
 @dataclass(frozen=True)

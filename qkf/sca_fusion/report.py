@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from qkf.core.io import atomic_write_bytes, atomic_write_text, csv_text, staged_directory
+from qkf.core.manifest import manifest, write_manifest
 from qkf.sca_fusion.config import FusionConfig
 from qkf.sca_fusion.design import AXES
 from qkf.sca_fusion.differentiation import quat_conj, quat_log, quat_mul
@@ -339,8 +340,11 @@ def _plots(run: FusionRun, truth: TruthComparison | None) -> dict[str, bytes]:
     return out
 
 
-def write_outputs(cfg: FusionConfig, run: FusionRun, out_dir: Path) -> TruthComparison | None:
-    """Compute every file, then write the folder atomically; returns the truth comparison."""
+def write_outputs(
+    cfg: FusionConfig, run: FusionRun, out_dir: Path, source: str = "simulated"
+) -> TruthComparison | None:
+    """Compute every file, then write the folder atomically with its ``run.json`` (kind
+    ``fuse``; ``source`` says where the data came from); returns the truth comparison."""
     truth = compare_with_truth(run)
     files = {
         "fused.csv": csv_text(FUSED_COLUMNS, fused_rows(run)),
@@ -356,6 +360,7 @@ def write_outputs(cfg: FusionConfig, run: FusionRun, out_dir: Path) -> TruthComp
             atomic_write_text(stage / name, text)
         for name, data in plots.items():
             atomic_write_bytes(stage / name, data)
+        write_manifest(stage, manifest("fuse", cfg.model_dump(mode="json"), source=source))
     return truth
 
 

@@ -11,13 +11,13 @@ are held in memory; :mod:`qkf.transfer_alignment.report` writes them.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
 
-from qkf.core.montecarlo import chunk_ids, progress_bar, run_chunks
+from qkf.core.montecarlo import ProgressBar, chunk_ids, progress_bar, run_chunks
 from qkf.core.stats import (
     ErrorAccumulator,
     average_nees_band,
@@ -140,8 +140,23 @@ def band_epochs(n: int) -> np.ndarray:
     return np.unique(np.append(np.arange(0, n, step), n - 1))
 
 
-def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarray) -> ChunkResult:
-    """Simulate trials ``ids`` and run every method on them (the unit of work of a backend)."""
+MethodReport = Callable[[str, np.ndarray, bool], None]
+"""``report(method, trial ids, finished)``: called by :func:`run_chunk` as each method starts
+and finishes on a chunk (progress; in-process runs only, it does not travel to workers)."""
+
+
+def run_chunk(
+    cfg: Config,
+    methods: list[NamedMethod],
+    seed: int,
+    ids: np.ndarray,
+    *,
+    report: MethodReport | None = None,
+) -> ChunkResult:
+    """Simulate trials ``ids`` and run every method on them (the unit of work of a backend).
+
+    ``report``: see :data:`MethodReport` (progress only; the results do not depend on it).
+    """
     n = n_epochs(cfg.scenario)
     sample = np.arange(0, n, kappa_sampling(cfg))
     banded = band_epochs(n)
@@ -149,6 +164,8 @@ def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarra
     data = simulate(cfg, seed, ids)
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
+        if report is not None:
+            report(m.name, ids, False)
         t0 = time.perf_counter()
         out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
         res.runtime_s[m.name] = time.perf_counter() - t0
@@ -167,7 +184,36 @@ def run_chunk(cfg: Config, methods: list[NamedMethod], seed: int, ids: np.ndarra
             ok = np.isfinite(val) & ~np.asarray(out.diverged)[:, None]
             res.nees_sum[m.name] = np.where(ok, val, 0.0).sum(axis=0)
             res.nees_count[m.name] = ok.sum(axis=0)
+        if report is not None:
+            report(m.name, ids, True)
     return res
+
+
+def _bar_label(labels: list[str], backend: str, workers: int) -> str:
+    """The progress bar's short description: ``bench: 10 methods`` (``, pool`` or ``, ray``
+    when the trials run in other processes), never the list of labels (it collapsed the bar
+    at 80 columns)."""
+    what = labels[0] if len(labels) == 1 else f"{len(labels)} methods"
+    if backend == "local" and workers <= 1:
+        return f"bench: {what}"
+    return f"bench: {what}, {'pool' if backend == 'local' else backend}"
+
+
+def _short(label: str, width: int = 16) -> str:
+    return label if len(label) <= width else label[: width - 1] + "…"
+
+
+def _method_progress(bar: ProgressBar) -> MethodReport:
+    """Advance ``bar`` by one method-trial per trial as each method finishes on a chunk, and
+    show the method in progress with its trials (1-based, as a user counts them)."""
+
+    def report(name: str, ids: np.ndarray, finished: bool) -> None:
+        if finished:
+            bar(int(ids.size))
+        else:
+            bar.note(f"{_short(name)} · trials {int(ids[0]) + 1}–{int(ids[-1]) + 1}")
+
+    return report
 
 
 def run_benchmark(
@@ -198,7 +244,6 @@ def run_benchmark(
     )
     labels = [m.name for m in _unique(named)]
     specs = {m.name: m.spec for m in named}
-    prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
     n = n_epochs(cfg.scenario)
     acc = {m: ErrorAccumulator(n) for m in labels}
     runtime = dict.fromkeys(labels, 0.0)
@@ -208,9 +253,22 @@ def run_benchmark(
     band_ms: dict[str, list[np.ndarray]] = {m: [] for m in labels}
     nees_sum: dict[str, np.ndarray | None] = dict.fromkeys(labels)
     nees_count = {m: np.zeros(covariance_epochs(cfg).size, np.int64) for m in labels}
-    task = partial(run_chunk, cfg, prepared, seed)
     chunks = chunk_ids(trials, cfg.run.chunk_trials)
-    with progress_bar(trials, f"{', '.join(labels)} ({backend})", progress) as advance:
+    # in this process the bar moves per method and chunk (a run of <= 64 trials is one chunk);
+    # trials that run in other processes report back per chunk only
+    in_process = backend == "local" and workers <= 1
+    label = _bar_label(labels, backend, workers)
+    with progress_bar(trials * len(labels), label, progress, "method-trials") as bar:
+        bar.note("preparing methods")
+        # inside the bar: a method's tuning in prepare() shows as its own counted row
+        prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
+        bar.note(None if in_process else f"0/{trials} trials")
+        task = (
+            partial(run_chunk, cfg, prepared, seed, report=_method_progress(bar))
+            if in_process
+            else partial(run_chunk, cfg, prepared, seed)
+        )
+        done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
             for m in labels:
                 acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
@@ -226,7 +284,10 @@ def run_benchmark(
                     prev = nees_sum[m]
                     nees_sum[m] = part if prev is None else prev + part
                     nees_count[m] += res.nees_count[m]
-            advance(res.count)
+            done += res.count
+            if not in_process:
+                bar(res.count * len(labels))
+            bar.note(f"{done}/{trials} trials")
     # per-trial metric values as written to trials.csv; the summary and its intervals are
     # computed from exactly these numbers (summary = sqrt(mean over trials of value²))
     values = {m: np.sqrt(np.concatenate(trial_ms[m])) for m in labels}

@@ -29,6 +29,7 @@ from pydantic import Field
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
 from qkf.core.io import atomic_write_bytes, csv_text, slug, staged_directory
+from qkf.core.manifest import manifest, write_manifest
 from qkf.core.stats import bootstrap_rms, percentile_interval, ratio_side, resample_counts
 from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
 from qkf.transfer_alignment.config import Config, load_config
@@ -179,6 +180,7 @@ def run_claims(path: str | Path, out_dir: str | Path, progress: bool = True) -> 
             write_bench(res, stage / names[key])
         atomic_write_bytes(stage / "claims.csv", csv_text(CLAIM_COLUMNS, rows).encode())
         atomic_write_bytes(stage / "claims.md", claims_markdown(study, verdicts).encode())
+        write_manifest(stage, manifest("claims", study.model_dump(mode="json")))
     return verdicts
 
 

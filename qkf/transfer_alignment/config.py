@@ -23,6 +23,7 @@ from qkf.core.config import (
     TimeWindow,
     apply_override,
     load_model,
+    workload_error,
 )
 from qkf.transfer_alignment.alarms import NIS_ALARM, QUIET_S
 
@@ -158,6 +159,26 @@ MAX_EPOCHS = 10_000_000
 """Upper bound on ``duration_s / dt_s``: beyond it a typo (1e30) would exhaust memory."""
 MAX_TRIALS = 10_000_000
 """Upper bound on Monte Carlo trial counts."""
+MAX_TRIAL_EPOCHS = 1_000_000_000
+"""Upper bound on trials × epochs, the total work of a benchmark (:func:`check_workload`).
+
+Each trial-epoch costs tens of µs of filtering per method on one core (simulation included),
+so 10⁹ is hours to days of CPU per method, and the benchmark keeps every trial's κ trace
+until the end: trials × epochs / (κ sampling) floats per adaptive method, 0.8 GB at the limit
+with the default sampling (every 10 epochs) and 8 GB when κ is sampled every epoch. 1,000
+trials of a day at 1 s (86,400 epochs), or 100 trials of the longest scenario
+(:data:`MAX_EPOCHS`), fit; 10⁷ trials of 10⁵ epochs (10¹², a typo) would run for years and
+exhaust memory long before its end.
+"""
+MAX_CHUNK_TRIAL_EPOCHS = 20_000_000
+"""Upper bound on the trials of one chunk × epochs: the memory of one chunk's arrays.
+
+A chunk's trials are simulated and filtered together: the truth and the measurements, then
+for each method its (chunk, epochs, 16) estimates and their errors, about 1.5 kB per
+trial-epoch in all (measured), so about 30 GB at the limit. It is twice :data:`MAX_EPOCHS`, so
+every accepted scenario runs with small enough chunks (``run.chunk_trials``); a chunk never
+holds more than the run's trials.
+"""
 
 
 def _default_maneuvers() -> list[Maneuver]:
@@ -298,7 +319,7 @@ class CovarianceMatchingConfig(StrictModel):
 class TunedConfig(StrictModel):
     """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
 
-    trials: Annotated[int, Field(ge=1)] = 8
+    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 8
     seed: Annotated[int, Field(ge=0)] = 1_000_003
 
 
@@ -351,6 +372,64 @@ class Config(StrictModel):
     adaptive: AdaptiveConfig = AdaptiveConfig()
     sweep: Sweep | None = None
 
+    @model_validator(mode="after")
+    def _workload(self) -> Config:
+        # a config whose run.trials × epochs is too much is refused on load, before any work.
+        # Not its chunk size: only a benchmark uses it (an environment or a test may load a long
+        # scenario with the preset's chunk_trials), and the commands that run one check it,
+        # and their --trials, with check_workload(cfg, trials)
+        try:
+            _check_total(self, None)
+        except ConfigError as exc:
+            raise workload_error(exc) from None
+        return self
+
+
+def epochs_of(scenario: Scenario) -> int:
+    """Epochs of a scenario, ``round(duration_s / dt_s)`` (as
+    :func:`qkf.transfer_alignment.params.n_epochs`, which imports this module)."""
+    return round(scenario.duration_s / scenario.dt_s)
+
+
+def check_workload(cfg: Config, trials: int | None = None) -> None:
+    """Refuse a benchmark too big to finish: ``trials × epochs`` above
+    :data:`MAX_TRIAL_EPOCHS` or one chunk's ``trials × epochs`` above
+    :data:`MAX_CHUNK_TRIAL_EPOCHS`. Raises :class:`ConfigError` naming the fields, the product
+    and the limit.
+
+    ``trials``: the trials the run will do (the command line's ``--trials``); ``None`` means
+    ``run.trials``. A chunk holds ``min(run.chunk_trials, trials)`` trials. Loading a config
+    checks ``run.trials × epochs`` only (the chunk size matters to a benchmark alone).
+    """
+    n_trials, who, epochs, what = _check_total(cfg, trials)
+    chunk = min(cfg.run.chunk_trials, n_trials)
+    if chunk * epochs > MAX_CHUNK_TRIAL_EPOCHS:
+        size = (
+            "run.chunk_trials" if chunk == cfg.run.chunk_trials else f"min(run.chunk_trials, {who})"
+        )
+        raise ConfigError(
+            f"{size} × {what} = {chunk:,} × {epochs:,} = {chunk * epochs:.3g} trial-epochs in "
+            f"one chunk; at most {MAX_CHUNK_TRIAL_EPOCHS:.0e} (the memory of a chunk's arrays): "
+            f"set run.chunk_trials to {MAX_CHUNK_TRIAL_EPOCHS // epochs:,} or less"
+        )
+
+
+def _check_total(cfg: Config, trials: int | None) -> tuple[int, str, int, str]:
+    """The total-work check of :func:`check_workload`; returns the trials, how they are named,
+    the epochs and how they are named."""
+    n_trials = cfg.run.trials if trials is None else trials
+    who = "run.trials" if trials is None or trials == cfg.run.trials else "--trials"
+    epochs = epochs_of(cfg.scenario)
+    what = "epochs (scenario.duration_s / scenario.dt_s)"
+    total = n_trials * epochs
+    if total > MAX_TRIAL_EPOCHS:
+        raise ConfigError(
+            f"{who} × {what} = {n_trials:,} × {epochs:,} = {total:.3g} trial-epochs; at most "
+            f"{MAX_TRIAL_EPOCHS:.0e} (run time and per-trial κ traces grow with it): lower "
+            f"{who} or scenario.duration_s"
+        )
+    return n_trials, who, epochs, what
+
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
     """Read and validate a config — a path or a preset name (``thermal_snap``) — then apply
@@ -364,4 +443,4 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return load_model(Config, resolved, overrides)
 
 
-__all__ = ["Config", "ConfigError", "apply_override", "load_config"]
+__all__ = ["Config", "ConfigError", "apply_override", "check_workload", "load_config"]

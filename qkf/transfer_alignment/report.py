@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,7 @@ import numpy as np
 from qkf.core.config import ConfigError, validate
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, read_manifest, write_manifest
-from qkf.core.plotting import figure_png, plt
+from qkf.core.plotting import Figure, figure_png, plt
 from qkf.core.stats import average_nees_band
 from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
@@ -105,10 +106,22 @@ def events_caption(cfg: Config) -> str:
     return "; ".join(parts)
 
 
-def rms_groups_png(res: BenchResult) -> bytes:
+def shared_legend(fig: Figure, axes: Any, ncol: int = 6) -> None:
+    """One legend for the whole figure, below the panels (outside every axes, so it never
+    hides data however many methods there are); the entries of every panel, once each."""
+    entries: dict[str, Any] = {}
+    for ax in np.ravel(axes):
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if entries:
+        fig.legend(entries.values(), entries.keys(), loc="outside lower center",
+                   ncol=min(ncol, len(entries)), fontsize=8, frameon=False)  # fmt: skip
+
+
+def rms_groups_figure(res: BenchResult) -> Figure:
     """RMS over trials vs time per state group for every method, with its bootstrap band, the
-    CRLB, the maneuvers and the calibration jumps."""
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True)
+    CRLB, the maneuvers and the calibration jumps; one shared legend below the panels."""
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), sharex=True, layout="constrained")
     bound_ms = (res.bound.bound / DISPLAY_UNIT) ** 2
     crlb_groups = group_rms(bound_ms)
     level = 100 * res.config.run.bootstrap.level
@@ -121,29 +134,33 @@ def rms_groups_png(res: BenchResult) -> bytes:
             if m.band is not None and res.band_t.size:
                 lo, hi = m.band[:, gi, 1], m.band[:, gi, 2]
                 ax.fill_between(res.band_t, lo, hi, color=style["color"], alpha=0.18, lw=0)
-        ax.semilogy(res.t, crlb_groups[g], "k--", lw=1.0, label="CRLB")
+        ax.semilogy(res.t, crlb_groups[g], "k--", lw=1.0, label="CRLB (1σ)")
         ax.set_title(title)
         ax.set_ylabel(f"RMS [{UNITS[g]}]")
         ax.grid(True, which="both", alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("time [s]")
-    axes[0, 0].legend(loc="upper right", fontsize=8)
+    shared_legend(fig, axes)
     caption = events_caption(res.config)
     fig.suptitle(
         f"{res.config.name}: RMS over {res.trials} trials (seed {res.seed}); bands: {level:g} % "
         f"bootstrap over trials" + (f"; {caption}" if caption else "")
     )
-    fig.tight_layout()
-    return figure_png(fig)
+    return fig
 
 
-def nees_png(res: BenchResult) -> bytes | None:
+def rms_groups_png(res: BenchResult) -> bytes:
+    """:func:`rms_groups_figure` as PNG bytes."""
+    return figure_png(rms_groups_figure(res))
+
+
+def nees_figure(res: BenchResult) -> Figure | None:
     """Trial-averaged NEES / 15 vs time for every method that reports a covariance, with the
-    χ² band of the average."""
+    χ² band of the average (None: no method reports one)."""
     judged = [(i, m) for i, m in enumerate(res.methods) if m.nees is not None]
     if not judged or res.nees_t.size == 0:
         return None
-    fig, ax = plt.subplots(figsize=(10, 4.8))
+    fig, ax = plt.subplots(figsize=(10, 5.4), layout="constrained")
     mark_events(ax, res.config)
     for i, m in judged:
         assert m.nees is not None
@@ -152,15 +169,21 @@ def nees_png(res: BenchResult) -> bytes | None:
     lo, hi = nees_band(judged[0][1], res.config.run.bootstrap.level)
     ax.fill_between(res.nees_t, lo / 15.0, hi / 15.0, color="gold", alpha=0.35, lw=0,
                     label="χ² band (consistent)")  # fmt: skip
-    ax.axvline(res.config.run.settled_s, color="0.4", lw=0.8, ls="--")
+    if res.nees_t[-1] >= res.config.run.settled_s:  # a run shorter than settled_s has no start
+        ax.axvline(res.config.run.settled_s, color="0.4", lw=0.8, ls="--")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("trial-averaged NEES / 15")
-    ax.set_title(f"{res.config.name}: each method's covariance against its errors "
-                 f"(1 = consistent; judged from {res.config.run.settled_s:g} s on)")  # fmt: skip
+    ax.set_title(f"{res.config.name}: each method's covariance against its errors\n"
+                 f"(1 = consistent; judged {nees_window_text(res)})", fontsize=10)  # fmt: skip
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, ncol=2)
-    fig.tight_layout()
-    return figure_png(fig)
+    shared_legend(fig, [ax])
+    return fig
+
+
+def nees_png(res: BenchResult) -> bytes | None:
+    """:func:`nees_figure` as PNG bytes (None: no method reports a covariance)."""
+    fig = nees_figure(res)
+    return None if fig is None else figure_png(fig)
 
 
 def nees_band(m: MethodResult, level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -196,44 +219,105 @@ def nees_rows(res: BenchResult) -> list[list[object]]:
     return rows
 
 
-def rms_states_png(res: BenchResult) -> bytes:
-    """RMS over trials vs time for each of the 15 states, with the CRLB."""
-    fig, axes = plt.subplots(5, 3, figsize=(13, 14), sharex=True)
+_STATE_GROUP_NAMES = {
+    "att": "attitude",
+    "bias": "gyro bias",
+    "sf": "scale factor s",
+    "ma": "misalignment k",
+}
+
+
+def state_title(column: str) -> str:
+    """A reader's name for a state column: ``att_x_arcsec`` → "attitude x", ``sf_y_ppm`` →
+    "scale factor s_y", ``ma_xy_urad`` → "misalignment k_xy"."""
+    group, axis = column.split("_")[:2]
+    name = _STATE_GROUP_NAMES[group]
+    return f"{name}_{axis}" if name.endswith((" s", " k")) else f"{name} {axis}"
+
+
+def state_unit(column: str) -> str:
+    """The display unit of a state column (``ma_xy_urad`` → µrad)."""
+    group = column.split("_")[0]
+    return next(u for g, u in UNITS.items() if g.split("_")[0] == group)
+
+
+def rms_states_figure(res: BenchResult) -> Figure:
+    """RMS over trials vs time for each of the 15 states, with the CRLB: one row per group
+    (misalignment: two), a title per state, axis labels with units, one shared legend."""
+    fig, axes = plt.subplots(5, 3, figsize=(13, 15), sharex=True, layout="constrained")
     bound = res.bound.bound / DISPLAY_UNIT
     for i, ax in enumerate(axes.ravel()):
+        mark_events(ax, res.config)
         for j, m in enumerate(res.methods):
             ax.semilogy(res.t, m.rms[:, i] / DISPLAY_UNIT[i], lw=1.0, label=m.name,
                         **method_style(j, res.t.size))  # fmt: skip
-        ax.semilogy(res.t, bound[:, i], "k--", lw=0.8, label="CRLB")
-        ax.set_title(STATE_COLUMNS[i], fontsize=9)
+        ax.semilogy(res.t, bound[:, i], "k--", lw=0.8, label="CRLB (1σ)")
+        ax.set_title(state_title(STATE_COLUMNS[i]), fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    return figure_png(fig)
+        if i % 3 == 0:
+            ax.set_ylabel(f"RMS [{state_unit(STATE_COLUMNS[i])}]")
+        if i >= 12:
+            ax.set_xlabel("time [s]")
+    shared_legend(fig, axes)
+    caption = events_caption(res.config)
+    fig.suptitle(f"{res.config.name}: RMS over {res.trials} trials per state"
+                 + (f"; {caption}" if caption else ""))  # fmt: skip
+    return fig
 
 
-def kappa_png(res: BenchResult) -> bytes | None:
-    """κ chosen over time by each adaptive method: median and 10–90 % band over trials."""
+def rms_states_png(res: BenchResult) -> bytes:
+    """:func:`rms_states_figure` as PNG bytes."""
+    return figure_png(rms_states_figure(res))
+
+
+def kappa_figure(res: BenchResult) -> Figure | None:
+    """κ chosen over time by each adaptive method, one small panel each (shared axes): the
+    median over trials and its 10–90 % band. Separate panels, because overlaid bands of many
+    methods merge into one wash. None: no method chose κ."""
     traced = [(i, m) for i, m in enumerate(res.methods) if m.kappa is not None]
     if not traced:
         return None
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    mark_events(ax, res.config)
-    for i, m in traced:
-        assert m.kappa is not None
-        lo, med, hi = np.percentile(m.kappa, [10, 50, 90], axis=0)
-        style = method_style(i, res.kappa_t.size)
-        ax.semilogy(res.kappa_t, med, lw=1.3, label=f"{m.name} (median)", **style)
-        ax.fill_between(res.kappa_t, lo, hi, color=style["color"], alpha=0.15, lw=0)
+    ncols = 1 if len(traced) <= 2 else 2
+    nrows = -(-len(traced) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(6.0 * ncols, 1.2 + 2.1 * nrows),
+                             sharex=True, sharey=True, squeeze=False,
+                             layout="constrained")  # fmt: skip
     acts = res.config.adaptive.actions.values()
-    ax.set_ylim(min(acts) / 1.5, max(acts) * 1.5)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("κ  (q_p = κ · q_p0)")
-    ax.set_title(f"{res.config.name}: process-noise factor in use (band: 10–90 % of trials)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    return figure_png(fig)
+    for ax, (i, m) in zip(axes.ravel(), traced, strict=False):
+        assert m.kappa is not None
+        mark_events(ax, res.config)
+        lo, med, hi = np.percentile(m.kappa, [10, 50, 90], axis=0)
+        color = method_style(i, res.kappa_t.size)["color"]
+        ax.fill_between(res.kappa_t, lo, hi, color=color, alpha=0.25, lw=0, step="post")
+        ax.step(res.kappa_t, med, where="post", lw=1.3, color=color)
+        ax.axhline(1.0, color="0.3", lw=0.7, ls=":")
+        ax.set_yscale("log")
+        ax.set_ylim(min(acts) / 1.5, max(acts) * 1.5)
+        ax.set_title(m.name, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    for ax in axes.ravel()[len(traced) :]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("κ")
+    for col in range(ncols):  # the lowest visible panel of each column carries the time axis
+        shown = [ax for ax in axes[:, col] if ax.get_visible()]
+        if shown:
+            shown[-1].set_xlabel("time [s]")
+            shown[-1].xaxis.set_tick_params(labelbottom=True)
+    caption = events_caption(res.config)
+    fig.suptitle(
+        f"{res.config.name}: process-noise factor κ in use (q_p = κ · q_p0), per method: median "
+        f"over {res.trials} trials (line) and 10–90 % of trials (band); horizontal dotted: κ = 1"
+        + (f"\n{caption}" if caption else ""),
+        fontsize=10,
+    )
+    return fig
+
+
+def kappa_png(res: BenchResult) -> bytes | None:
+    """:func:`kappa_figure` as PNG bytes (None: no method chose κ)."""
+    fig = kappa_figure(res)
+    return None if fig is None else figure_png(fig)
 
 
 def kappa_rows(res: BenchResult) -> list[list[object]]:
@@ -292,6 +376,33 @@ def _recovery(res: BenchResult) -> dict[str, dict[str, float]]:
     }
 
 
+def settled_window_text(t: np.ndarray, settled_s: float) -> str:
+    """What the *settled* window of :func:`~qkf.transfer_alignment.metrics.window_masks` really
+    is for epochs ``t`` (s): "from 400 s on", or, for a run that ends before ``settled_s``,
+    the last epoch alone (which is what the metrics then average over)."""
+    if t.size == 0 or t[-1] >= settled_s - 1e-9:
+        return f"from {settled_s:g} s on"
+    return (
+        f"the last epoch only (t = {t[-1]:g} s), because the run ends before run.settled_s = "
+        f"{settled_s:g} s: the settled values are the errors at that one epoch, not an average "
+        "over a settled stretch"
+    )
+
+
+def nees_window_text(res: BenchResult) -> str:
+    """Where NEES is judged: "from 400 s on", or the last sampled epoch alone when the run ends
+    before ``run.settled_s`` (what :func:`~qkf.transfer_alignment.benchmark.nees_summary`
+    then uses)."""
+    settled_s = res.config.run.settled_s
+    t = res.nees_t
+    if t.size == 0 or t[-1] >= settled_s - 1e-9:
+        return f"from {settled_s:g} s on"
+    return (
+        f"at the last sampled epoch only (t = {t[-1]:g} s; the run ends before "
+        f"run.settled_s = {settled_s:g} s)"
+    )
+
+
 def summary_markdown(res: BenchResult) -> str:
     cfg = res.config
     crlb_summary = summarize(res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s)
@@ -310,9 +421,9 @@ def summary_markdown(res: BenchResult) -> str:
         f"Trials: {res.trials}, seed: {res.seed}, matching: {cfg.filter.matching}, "
         f"q_p0 = {cfg.filter.qp0:g} /s, duration {cfg.scenario.duration_s:g} s.",
         "RMS over trials; *final* = over the last 20 % of the run, *avg* = over the whole run, "
-        f"*settled* = from {cfg.run.settled_s:g} s on; a group's RMS is the root of the mean "
-        "square over its components. Intervals of every value are in summary.csv "
-        f"({level:g} % bootstrap over trials).",
+        f"*settled* = {settled_window_text(res.t, cfg.run.settled_s)}; a group's RMS is the "
+        "root of the mean square over its components. Intervals of every value are in "
+        f"summary.csv ({level:g} % bootstrap over trials).",
     ]
     if verdicts:
         lines.append(
@@ -332,7 +443,7 @@ def summary_markdown(res: BenchResult) -> str:
     if judged:
         lines += [
             "",
-            f"Consistency of each method's own covariance, from {cfg.run.settled_s:g} s on "
+            f"Consistency of each method's own covariance, {nees_window_text(res)} "
             f"(sampled every {cfg.run.nees_every_s:g} s): trial-averaged NEES / 15 (1 = "
             f"consistent, > 1 over-confident) and the fraction of sampled epochs inside the "
             f"{level:g} % χ² band (nees.csv, nees.png):",
@@ -347,10 +458,17 @@ def summary_markdown(res: BenchResult) -> str:
     lines += _gap_lines(res)
     recovery = _recovery(res)
     if recovery:
+        jump = min(j.t_s for j in cfg.scenario.calibration_jumps)
+        why = (
+            f"; every cell is – here: the jump at {jump:g} s comes before run.settled_s = "
+            f"{cfg.run.settled_s:g} s, so there is no settled pre-jump level"
+            if jump <= cfg.run.settled_s + 1e-9
+            else ""
+        )
         lines += [
             "",
             "Recovery after the calibration jump (s until the group RMS is back within 1.5× its "
-            "settled pre-jump level; – = not within the run):",
+            f"settled pre-jump level; – = not within the run{why}):",
             "",
             "| method | " + " | ".join(GROUP_TITLES) + " |",
             "|" + "---|" * (len(GROUP_TITLES) + 1),
@@ -467,48 +585,123 @@ def write_bench(
     return [out / name for name in (*files, "run.json")]
 
 
-def _read_rows(path: Path) -> list[dict[str, str]]:
+@dataclass(frozen=True)
+class _Row:
+    """One data row of a result CSV read back, with where it came from (for messages)."""
+
+    path: Path
+    line: int  # 1-based line of the file (the header is line 1)
+    cells: dict[str, str]
+
+    def text(self, col: str) -> str:
+        return self.cells[col]
+
+    def num(self, col: str, blank: float | None = None) -> float:
+        """The cell as a number; ``blank``: the value of an empty cell (else it is an error)."""
+        raw = self.cells[col]
+        if raw == "" and blank is not None:
+            return blank
+        try:
+            return float(raw)
+        except ValueError:
+            raise ConfigError(
+                f"{self.path}: line {self.line}: {col}: {raw!r} is not a number "
+                "(a truncated or corrupt file?)"
+            ) from None
+
+    def integer(self, col: str) -> int:
+        value = self.num(col)
+        if not value.is_integer():
+            raise ConfigError(f"{self.path}: line {self.line}: {col}: {value:g} is not an integer")
+        return int(value)
+
+
+def _read_rows(path: Path, columns: tuple[str, ...] = ()) -> list[_Row]:
+    """The data rows of a result CSV; ``ConfigError`` naming the file and the line for a missing
+    file or column, a row with too few or too many cells (a truncated file) or bad bytes."""
     if not path.is_file():
         raise ConfigError(f"{path}: missing (not a complete qkf bench folder)")
-    with path.open(newline="") as f:
-        return list(csv.DictReader(f))
+    rows = []
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            if not header:
+                raise ConfigError(f"{path}: empty (not a complete qkf bench folder)")
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise ConfigError(f"{path}: line 1: no column {', '.join(missing)}")
+            for cells in reader:
+                if len(cells) != len(header):
+                    raise ConfigError(
+                        f"{path}: line {reader.line_num}: {len(cells)} cells where the header "
+                        f"has {len(header)} (a truncated or corrupt file?)"
+                    )
+                rows.append(_Row(path, reader.line_num, dict(zip(header, cells, strict=True))))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (a corrupt file?)") from None
+    except csv.Error as exc:
+        raise ConfigError(f"{path}: not a readable CSV file ({exc})") from None
+    return rows
+
+
+def read_crlb_csv(path: str | Path) -> CrlbResult:
+    """A ``crlb.csv`` read back (SI), its covariance left empty; ``ConfigError`` names the file
+    and the line of a bad row."""
+    rows = _read_rows(Path(path), ("t_s", *STATE_COLUMNS))
+    if not rows:
+        raise ConfigError(f"{path}: no rows (a truncated file?)")
+    t = np.array([r.num("t_s") for r in rows])
+    bound = np.array([[r.num(c) for c in STATE_COLUMNS] for r in rows]) * DISPLAY_UNIT
+    return CrlbResult(t=t, bound=bound, cov=np.empty((0, 15, 15)))
 
 
 def load_bench(folder: str | Path) -> BenchResult:
     """A finished benchmark read back from its files (``run.json``, ``rms.csv``, ``crlb.csv``,
-    ``summary.csv``, ``kappa.csv``), for redrawing its figures."""
+    ``summary.csv``, ``kappa.csv``), for redrawing its figures. ``ConfigError`` names the file
+    and the line of anything that cannot be read (a truncated or corrupt file)."""
     folder = Path(folder)
     info = read_manifest(folder, "bench")
     cfg = validate(Config, info["config"], str(folder / "run.json"), "configuration")
     unit = DISPLAY_UNIT
-    crlb_rows = _read_rows(folder / "crlb.csv")
-    t = np.array([float(r["t_s"]) for r in crlb_rows])
-    bound = np.array([[float(r[c]) for c in STATE_COLUMNS] for r in crlb_rows]) * unit
+    bound = read_crlb_csv(folder / "crlb.csv")
+    t = bound.t
     per_method: dict[str, list[list[float]]] = defaultdict(list)
-    for r in _read_rows(folder / "rms.csv"):
-        per_method[r["method"]].append([float(r[c]) for c in STATE_COLUMNS])
+    rms_path = folder / "rms.csv"
+    for r in _read_rows(rms_path, ("method", *STATE_COLUMNS)):
+        per_method[r.text("method")].append([r.num(c) for c in STATE_COLUMNS])
     kappa: dict[str, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
     kappa_t: list[float] = []
     if (folder / "kappa.csv").is_file():
-        for r in _read_rows(folder / "kappa.csv"):
-            kappa[r["method"]][int(r["trial"])].append(float(r["kappa"]))
-            if not kappa_t or float(r["t_s"]) > kappa_t[-1]:
-                kappa_t.append(float(r["t_s"]))
+        for r in _read_rows(folder / "kappa.csv", ("method", "trial", "t_s", "kappa")):
+            kappa[r.text("method")][r.integer("trial")].append(r.num("kappa"))
+            if not kappa_t or r.num("t_s") > kappa_t[-1]:
+                kappa_t.append(r.num("t_s"))
     bands, band_t = _read_bands(folder / "rms_bands.csv")
     nees, nees_t = _read_nees(folder / "nees.csv")
     methods = []
-    for r in _read_rows(folder / "summary.csv"):
-        name = r["method"]
+    summary_cols = ("method", "trials", "diverged", "runtime_s", *INTERVAL_COLUMNS)
+    for r in _read_rows(folder / "summary.csv", summary_cols):
+        name = r.text("method")
+        # a short method (rows lost at the end of rms.csv) would plot a curve that stops early
+        if len(per_method.get(name, [])) != t.size:
+            raise ConfigError(
+                f"{rms_path}: method {name}: {len(per_method.get(name, []))} rows where crlb.csv "
+                f"has {t.size} epochs (a truncated file?)"
+            )
         traces = kappa.get(name)
+        if traces and len({len(v) for v in traces.values()} | {len(kappa_t)}) > 1:
+            raise ConfigError(f"{folder / 'kappa.csv'}: method {name}: traces of unequal length "
+                              "(a truncated file?)")  # fmt: skip
         methods.append(
             MethodResult(
                 name=name,
                 rms=np.array(per_method[name]) * unit,
-                trials=int(r["trials"]),
-                diverged=int(r["diverged"]),
-                runtime_s=float(r["runtime_s"]),
+                trials=r.integer("trials"),
+                diverged=r.integer("diverged"),
+                runtime_s=r.num("runtime_s"),
                 summary={
-                    c: float(r[c]) if r.get(c, "") != "" else float("nan")
+                    c: r.num(c, blank=float("nan")) if c in r.cells else float("nan")
                     for c in (*INTERVAL_COLUMNS, *NEES_COLUMNS)
                 },
                 kappa=np.array([traces[i] for i in sorted(traces)]) if traces else None,
@@ -523,7 +716,7 @@ def load_bench(folder: str | Path) -> BenchResult:
         trials=int(info["trials"]),
         t=t,
         methods=methods,
-        bound=CrlbResult(t=t, bound=bound, cov=np.empty((0, 15, 15))),
+        bound=bound,
         kappa_t=np.array(kappa_t),
         backend=str(info.get("backend", "local")),
         workers=int(info.get("workers", 1)),
@@ -536,14 +729,17 @@ def _read_bands(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """rms_bands.csv back as (T, groups, 3) per method (absent file: no bands)."""
     if not path.is_file():
         return {}, np.empty(0)
-    rows = _read_rows(path)
+    rows = _read_rows(path, BAND_COLUMNS)
     groups = list(GROUP_TITLES)
-    t = np.unique([float(r["t_s"]) for r in rows])
+    t = np.unique([r.num("t_s") for r in rows])
     out: dict[str, np.ndarray] = {}
     for r in rows:
-        band = out.setdefault(r["method"], np.full((t.size, len(groups), 3), np.nan))
-        k = int(np.searchsorted(t, float(r["t_s"])))
-        band[k, groups.index(r["group"])] = [float(r["rms"]), float(r["lo"]), float(r["hi"])]
+        if r.text("group") not in groups:
+            raise ConfigError(f"{path}: line {r.line}: group: {r.text('group')!r} is not one of "
+                              f"{', '.join(groups)}")  # fmt: skip
+        band = out.setdefault(r.text("method"), np.full((t.size, len(groups), 3), np.nan))
+        k = int(np.searchsorted(t, r.num("t_s")))
+        band[k, groups.index(r.text("group"))] = [r.num("rms"), r.num("lo"), r.num("hi")]
     return out, t
 
 
@@ -552,8 +748,10 @@ def _read_nees(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], np
     if not path.is_file():
         return {}, np.empty(0)
     per: dict[str, list[tuple[float, float, int]]] = defaultdict(list)
-    for r in _read_rows(path):
-        per[r["method"]].append((float(r["t_s"]), float(r["nees"]), int(r["trials"])))
+    for r in _read_rows(path, NEES_FILE_COLUMNS):
+        per[r.text("method")].append((r.num("t_s"), r.num("nees"), r.integer("trials")))
+    if len({len(v) for v in per.values()}) > 1:
+        raise ConfigError(f"{path}: methods with unequal numbers of rows (a truncated file?)")
     out = {
         m: (np.array([v[1] for v in vals]), np.array([v[2] for v in vals]))
         for m, vals in per.items()
@@ -562,13 +760,16 @@ def _read_nees(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], np
     return out, t
 
 
-def redraw_bench(folder: str | Path) -> list[Path]:
-    """Redraw every figure of a finished benchmark from its files; returns the figures."""
-    folder = Path(folder)
+def redraw_bench(*folders: str | Path) -> list[Path]:
+    """Redraw every figure of finished benchmarks (a sweep's folders, say) from their files;
+    returns the figures. Every folder is read and rendered before the first file is written,
+    so a truncated or corrupt file (``ConfigError``) leaves every figure as it was."""
+    rendered = [(Path(f), bench_figures(load_bench(f))) for f in folders]
     written = []
-    for name, content in bench_figures(load_bench(folder)).items():
-        atomic_write_bytes(folder / name, content)
-        written.append(folder / name)
+    for folder, figures in rendered:
+        for name, content in figures.items():
+            atomic_write_bytes(folder / name, content)
+            written.append(folder / name)
     return written
 
 
@@ -578,6 +779,7 @@ __all__ = [
     "SUMMARY_COLUMNS",
     "TRIAL_COLUMNS",
     "load_bench",
+    "read_crlb_csv",
     "redraw_bench",
     "rms_groups_png",
     "summary_markdown",

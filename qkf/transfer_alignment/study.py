@@ -13,12 +13,17 @@ A study file (``configs/studies/*.yaml``)::
       - {label: attitude, set: [filter.matching=attitude]}
       - {label: attitude + rate, set: [filter.matching=attitude_rate]}
 
-A case may name its own ``base``. Output: one folder per case (the files of ``qkf bench`` or
-``crlb.csv``), ``study.csv`` (one row per case and method) and ``study.png``.
+A ``base`` is a path relative to the study file or, if no such file exists, a preset name
+(``base: paper``); a case may name its own. Labels must differ, also once made file-name safe
+(each names its case folder). Output: one folder per case (the files of ``qkf bench`` or
+``crlb.csv``), ``study.csv`` (one row per case and method), ``study.png`` and ``run.json`` (the
+study, the trials and ``--set`` overrides in effect, the cases and their folders: what
+``qkf plot`` needs to redraw it).
 """
 
 from __future__ import annotations
 
+import csv
 import shutil
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -39,15 +44,16 @@ from qkf.core.io import (
     slug,
     staged_directory,
 )
+from qkf.core.manifest import MANIFEST as RUN_FILE
 from qkf.core.manifest import manifest, read_manifest, write_manifest
-from qkf.core.plotting import figure_png, plt
+from qkf.core.plotting import Figure, figure_png, plt
 from qkf.transfer_alignment.benchmark import (
     NEES_COLUMNS,
     BenchResult,
     parse_methods,
     run_benchmark,
 )
-from qkf.transfer_alignment.config import Config, load_config
+from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.methods import NamedMethod
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, group_rms, summarize
@@ -55,8 +61,10 @@ from qkf.transfer_alignment.report import (
     INTERVAL_COLUMNS,
     SUMMARY_COLUMNS,
     UNITS,
+    bench_figures,
     load_bench,
     method_style,
+    read_crlb_csv,
     summary_rows,
     write_bench,
     write_crlb_csv,
@@ -76,7 +84,7 @@ class Study(StrictModel):
     kind: Literal["bench", "crlb"] = "bench"
     base: str
     methods: list[str] = Field(default_factory=lambda: ["kf"])
-    trials: Annotated[int, Field(ge=1)] = 20
+    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 20
     seed: Annotated[int, Field(ge=0)] = 0
     metric: str = "ma_urad_settled"
     cases: list[Case] = Field(min_length=1)
@@ -140,6 +148,12 @@ def write_case(result: CaseResult, folder: Path) -> list[Path]:
     return [folder / "crlb.csv", folder / "run.json"]
 
 
+def case_folder(label: str) -> str:
+    """The folder of a study case: its label made file-name safe (``attitude + rate`` →
+    ``attitude_rate``)."""
+    return slug(label).strip("_") or "case"
+
+
 def _finished(case: CaseRun, folder: Path, methods: list[Any], trials: int, seed: int) -> bool:
     """A case folder that holds a complete benchmark of exactly this case."""
     try:
@@ -156,19 +170,60 @@ def _finished(case: CaseRun, folder: Path, methods: list[Any], trials: int, seed
     )
 
 
-def prepare_output(out: Path, resume: bool, overwrite: bool) -> None:
+def prepare_output(out: str | Path, resume: bool, overwrite: bool, kind: str = "study") -> None:
     """Refuse an output folder that holds something else, unless told to resume or replace.
 
     A study or sweep writes each case folder whole as soon as it is done, so an interrupted run
     can be finished with ``resume`` (finished cases are read back, not recomputed).
     """
-    check_output_dir(out)
+    out = check_output_dir(out)  # as given: Path('') would be the working directory
     if resume and overwrite:
         raise OutputError("--resume and --overwrite exclude each other")
-    if out.is_dir() and any(out.iterdir()) and not (resume or overwrite):
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if not (resume or overwrite):
         raise OutputError(
             f"{out}: holds an earlier run; --resume finishes it, --overwrite replaces it"
         )
+    if overwrite:
+        # replaced whole at the end only if it holds nothing but an earlier run of this kind
+        # (qkf.core.io.staged_directory): checked now, not after the work
+        check_output_dir(out, kind)
+        return
+    # resuming removes what an earlier study or sweep left there (stale case folders,
+    # summaries): refuse, before any work, a folder that holds anything else
+    foreign = _not_ours(out)
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (", …" if len(foreign) > 4 else "")
+        raise OutputError(f"{out}: holds files that are not a qkf run ({shown})")
+
+
+_SUMMARY_FILES = {"study.csv", "study.png", "sweep_summary.csv", RUN_FILE}
+"""The files a study or sweep writes beside its case folders."""
+
+
+def _not_ours(out: Path) -> list[str]:
+    """The entries of ``out`` that no study or sweep wrote: anything but case folders (each
+    holds a ``run.json``), the summary files and qkf's hidden staging folders."""
+    return sorted(
+        e.name
+        for e in out.iterdir()
+        if not (
+            e.name.startswith(".")
+            or (e.is_dir() and (e / RUN_FILE).is_file())
+            or (e.is_file() and e.name in _SUMMARY_FILES)
+        )
+    )
+
+
+def _write_root_manifest(where: Path, kind: str, config: dict[str, Any], **run: Any) -> None:
+    """``run.json`` of a study or sweep folder, with the list of every file under it (so that
+    ``--overwrite`` may replace exactly these). Rewritten after each case: an interrupted run
+    is a complete description of what it holds."""
+    data = manifest(kind, config, **run)
+    files = {p.relative_to(where).as_posix() for p in where.rglob("*") if p.is_file()}
+    data["files"] = sorted(files | {RUN_FILE})
+    write_manifest(where, data)
 
 
 def run_cases(
@@ -179,14 +234,18 @@ def run_cases(
     seed: int,
     resume: bool = False,
     on_case: Callable[[CaseRun, Path, bool], None] | None = None,
+    on_start: Callable[[int, int, CaseRun], None] | None = None,
     **bench: Any,
 ) -> list[CaseResult]:
     """Run the cases into ``out/<case folder>/``, each written whole as soon as it is done;
-    with ``resume``, a case whose folder already holds its complete run is read back instead.
-    ``on_case(case, folder, reused)`` is called after each. ``bench``: ``run_benchmark``
-    options (progress, backend, workers)."""
+    with ``resume``, a case whose folder already holds its complete run (same config, methods,
+    trials and seed) is read back instead. ``on_start(i, n, case)`` (1-based ``i`` of ``n``) is
+    called before each case, ``on_case(case, folder, reused)`` after each. ``bench``:
+    ``run_benchmark`` options (progress, backend, workers)."""
     results = []
-    for case in cases:
+    for i, case in enumerate(cases, 1):
+        if on_start is not None:
+            on_start(i, len(cases), case)
         folder = out / case.folder
         reused = resume and methods is not None and _finished(case, folder, methods, trials, seed)
         if reused:
@@ -203,21 +262,20 @@ def run_cases(
 def _remove_stale(out: Path, keep: set[str]) -> None:
     """Remove what an earlier run left in ``out`` that this run did not write: case folders
     (recognised by their ``run.json``) and the summary files of studies and sweeps."""
-    ours = {"study.csv", "study.png", "sweep_summary.csv", "run.json"}
     for entry in out.iterdir():
         if entry.name in keep:
             continue
-        if entry.is_dir() and (entry / "run.json").is_file():
+        if entry.is_dir() and (entry / RUN_FILE).is_file():
             shutil.rmtree(entry)
-        elif entry.is_file() and entry.name in ours:
+        elif entry.is_file() and entry.name in _SUMMARY_FILES:
             entry.unlink()
 
 
 @contextmanager
-def _output(out: Path, resume: bool, overwrite: bool) -> Iterator[Path]:
-    """Where a study or sweep writes: ``out`` itself (fresh or resumed), or, with
+def _output(out: Path, resume: bool, overwrite: bool, kind: str) -> Iterator[Path]:
+    """Where a study or sweep (``kind``) writes: ``out`` itself (fresh or resumed), or, with
     ``overwrite``, a staging folder swapped in whole at the end."""
-    prepare_output(out, resume, overwrite)
+    prepare_output(out, resume, overwrite, kind)
     if overwrite:
         with staged_directory(out) as stage:
             yield stage
@@ -259,40 +317,89 @@ def run_sweep(
     out = Path(out_dir)
     run = cases[0].cfg.run
     n, s = trials or run.trials, run.seed if seed is None else seed
-    with _output(out, resume, overwrite) as where:
-        results = run_cases(cases, methods, where, n, s, resume, on_case, **bench)
+    with _output(out, resume, overwrite, "sweep") as where:
+        folders = [{"label": c.label, "folder": c.folder} for c in cases]
+        sweep = {"sweep": {"key": key, "values": [c.label for c in cases]}}
+
+        def record() -> None:
+            _write_root_manifest(where, "sweep", sweep, trials=n, seed=s, cases=folders)
+
+        def after(case: CaseRun, folder: Path, reused: bool) -> None:
+            record()
+            if on_case is not None:
+                on_case(case, folder, reused)
+
+        record()
+        results = run_cases(cases, methods, where, n, s, resume, after, **bench)
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "sweep_summary.csv", (key, *SUMMARY_COLUMNS), rows)
-        _remove_stale(where, {c.folder for c in cases} | {"sweep_summary.csv"})
+        _remove_stale(where, {c.folder for c in cases} | {"sweep_summary.csv", RUN_FILE})
+        record()
     return out / "sweep_summary.csv"
 
 
 # ---- studies: named cases from a study file, plotted together --------------------------------
 
 
-def load_study(path: str | Path) -> tuple[Study, list[Config]]:
-    """Read a study (a path or a preset name) and the config of each case.
+def load_study(path: str | Path, sets: list[str] | None = None) -> tuple[Study, list[Config]]:
+    """Read a study (a path or a preset name) and the config of each case; ``sets``
+    (``dotted.key=value``) are applied to every case after the case's own.
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, "studies")
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
-    if study.kind == "bench" and study.metric not in METRIC_COLUMNS:
+    # a CRLB study plots the same summary columns (of the bound), so the same names apply
+    if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
     if study.kind == "bench":
         try:
             parse_methods(study.methods)
         except ValueError as exc:
             raise ConfigError(f"{path}: methods: {exc}") from None
+    _check_labels(path, study)
     configs = []
     for i, case in enumerate(study.cases):
         try:
-            configs.append(
-                load_config((path.parent / (case.base or study.base)).resolve(), case.set)
-            )
+            base = case_base(path, case.base or study.base)
+            configs.append(load_config(base, [*case.set, *(sets or [])]))
         except ConfigError as exc:
             raise ConfigError(f"{path}: cases.{i} ({case.label}): {exc}") from None
     return study, configs
+
+
+def _check_labels(path: Path, study: Study) -> None:
+    """Refuse two cases with one label, or with labels that give one case folder: the second
+    would overwrite the first's folder and rows."""
+    first: dict[str, int] = {}
+    for j, case in enumerate(study.cases):
+        folder = case_folder(case.label)
+        i = first.setdefault(folder, j)
+        if i == j:
+            continue
+        other = study.cases[i].label
+        if other == case.label:
+            raise ConfigError(
+                f"{path}: cases.{j}.label: {case.label!r} is also the label of cases.{i}; "
+                "each case needs a label of its own (it names the case's folder and rows)"
+            )
+        raise ConfigError(
+            f"{path}: cases.{j}.label: {case.label!r} and cases.{i}.label {other!r} give the "
+            f"same case folder {folder!r}; make them differ in letters or digits"
+        )
+
+
+def case_base(study_path: Path, base: str) -> Path:
+    """A case's base config: the path relative to the study file if it exists, else the preset
+    of that name (``base: paper``), else the relative path (reported missing by the loader)."""
+    rel = study_path.parent / base
+    if rel.exists() or not presets.is_preset_name(base):
+        return rel.resolve() if rel.exists() else rel
+    # by name only, never relative to the working directory (presets.resolve looks there first)
+    stem = Path(base).stem.replace("-", "_")
+    if stem in presets.preset_names():
+        return presets.preset_dir() / f"{stem}.yaml"
+    return rel
 
 
 def run_study(
@@ -302,27 +409,126 @@ def run_study(
     resume: bool = False,
     overwrite: bool = False,
     on_case: Callable[[CaseRun, Path, bool], None] | None = None,
+    *,
+    trials: int | None = None,
+    sets: list[str] | None = None,
+    on_start: Callable[[int, int, CaseRun], None] | None = None,
 ) -> list[Path]:
-    """Run every case (each case folder written as soon as it is done), then ``study.csv`` and
-    ``study.png``."""
-    study, configs = load_study(path)
+    """Run every case (each case folder written as soon as it is done), then ``study.csv``,
+    ``study.png`` and ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied
+    to every case after its own (both recorded in run.json, and in each case's manifest)."""
+    study, configs = load_study(path, sets)
     out = Path(out_dir)
+    n = study.trials if trials is None else trials
     methods = study.methods if study.kind == "bench" else None
     cases = [
-        CaseRun(case.label, slug(case.label).strip("_") or "case", cfg)
+        CaseRun(case.label, case_folder(case.label), cfg)
         for case, cfg in zip(study.cases, configs, strict=True)
     ]
-    with _output(out, resume, overwrite) as where:
+    with _output(out, resume, overwrite, "study") as where:
+        folders = [{"label": c.label, "folder": c.folder} for c in cases]
+
+        def record() -> None:
+            _write_root_manifest(
+                where, "study", study.model_dump(mode="json"), study=str(path), trials=n,
+                seed=study.seed, sets=list(sets or []), cases=folders,
+            )  # fmt: skip
+
+        def after(case: CaseRun, folder: Path, reused: bool) -> None:
+            record()
+            if on_case is not None:
+                on_case(case, folder, reused)
+
+        record()
         results = run_cases(
-            cases, methods, where, study.trials, study.seed, resume, on_case, progress=progress
+            cases, methods, where, n, study.seed, resume, after, on_start, progress=progress
         )
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
         level = configs[0].run.bootstrap.level
-        png = _study_png(study, _curves(results), rows, level)
+        png = figure_png(study_figure(study, _curves(results), rows, level))
         atomic_write_bytes(where / "study.png", png)
-        _remove_stale(where, {c.folder for c in cases} | {"study.csv", "study.png"})
+        _remove_stale(where, {c.folder for c in cases} | {"study.csv", "study.png", RUN_FILE})
+        record()
     return [*(out / c.folder for c in cases), out / "study.csv", out / "study.png"]
+
+
+def redraw_study(folder: str | Path) -> list[Path]:
+    """Redraw the figures of a finished study from its files, without rerunning anything: each
+    bench case's figures (from its CSV files) and ``study.png`` (from ``study.csv``, the cases'
+    CRLBs and RMS curves, and ``run.json``). Returns the figures written; ``ConfigError`` names
+    the file (and line) that cannot be read."""
+    folder = Path(folder)
+    manifest_path = folder / RUN_FILE
+    if not manifest_path.is_file():
+        raise ConfigError(
+            f"{manifest_path}: missing (a study folder written by an earlier qkf); "
+            f"qkf study STUDY --out {folder} --resume writes it and redraws the study "
+            "(finished bench cases are kept, not rerun)"
+        )
+    info = read_manifest(folder, "study")
+    study = validate(Study, info["config"], str(manifest_path), "study")
+    study_csv = folder / "study.csv"
+    table = _read_study_csv(study_csv)
+    loaded: list[tuple[CaseResult, dict[str, bytes]]] = []
+    for case in study.cases:  # read everything first: a bad file leaves every figure as it was
+        where = folder / case_folder(case.label)
+        if study.kind == "bench":
+            bench = load_bench(where)
+            run = CaseRun(case.label, where.name, bench.config)
+            loaded.append((CaseResult(run, bench.bound, bench), bench_figures(bench)))
+        else:
+            cfg_info = read_manifest(where, "crlb")
+            cfg = validate(Config, cfg_info["config"], str(where / RUN_FILE), "configuration")
+            bound = read_crlb_csv(where / "crlb.csv")
+            loaded.append((CaseResult(CaseRun(case.label, where.name, cfg), bound, None), {}))
+    labels = [c.label for c in study.cases]
+    missing = [lab for lab in labels if lab not in {r[0] for r in table}]
+    if missing:
+        raise ConfigError(f"{study_csv}: no row of case {missing[0]!r} (a truncated file?)")
+    results = [r for r, _ in loaded]
+    level = results[0].case.cfg.run.bootstrap.level
+    png = figure_png(study_figure(study, _curves(results), table, level))
+    written = []
+    for result, figures in loaded:
+        for name, content in figures.items():
+            atomic_write_bytes(folder / result.case.folder / name, content)
+            written.append(folder / result.case.folder / name)
+    atomic_write_bytes(folder / "study.png", png)
+    return [*written, folder / "study.png"]
+
+
+def _read_study_csv(path: Path) -> list[list[object]]:
+    """``study.csv`` back as the rows :func:`study_figure` takes (text cells), checked: every
+    row complete, the plotted columns numbers (or empty); ``ConfigError`` names the line."""
+    if not path.is_file():
+        raise ConfigError(f"{path}: missing (not a complete qkf study folder)")
+    header = ["case", *SUMMARY_COLUMNS]
+    rows: list[list[object]] = []
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            if next(reader, None) != header:
+                raise ConfigError(f"{path}: line 1: not the header of a qkf study.csv")
+            for cells in reader:
+                if len(cells) != len(header):
+                    raise ConfigError(
+                        f"{path}: line {reader.line_num}: {len(cells)} cells where the header "
+                        f"has {len(header)} (a truncated or corrupt file?)"
+                    )
+                for col, cell in zip(header[4:], cells[4:], strict=True):
+                    try:
+                        float(cell or "nan")
+                    except ValueError:
+                        raise ConfigError(
+                            f"{path}: line {reader.line_num}: {col}: {cell!r} is not a number"
+                        ) from None
+                rows.append(list(cells))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (a corrupt file?)") from None
+    except csv.Error as exc:
+        raise ConfigError(f"{path}: not a readable CSV file ({exc})") from None
+    return rows
 
 
 Curve = tuple[str, str, np.ndarray, dict[str, np.ndarray]]  # case, method, t, group RMS
@@ -338,56 +544,121 @@ def _curves(results: list[CaseResult]) -> list[Curve]:
     return curves
 
 
-CASE_STYLES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1)))
-
-
-def _study_png(study: Study, curves: list[Curve], rows: list[list[object]], level: float) -> bytes:
-    """RMS vs time per group (colour: method, the same in every panel; dash: case) and the
-    study's metric per case and method with its bootstrap interval as error bars."""
-    fig = plt.figure(figsize=(13, 10))
-    grid = fig.add_gridspec(3, 2, height_ratios=[1, 1, 1.0])
-    axes = [fig.add_subplot(grid[i // 2, i % 2]) for i in range(4)]
-    methods = list(dict.fromkeys(str(r[1]) for r in rows))
+def study_figure(
+    study: Study, curves: list[Curve], rows: list[list[object]], level: float
+) -> Figure:
+    """The study's figure: RMS (and CRLB) vs time per state group, then the study's metric per
+    case and method. A bench study gets small multiples, one row per group and one column per
+    case (colour: method, the same everywhere; dashed black: the CRLB; y shared along a row);
+    a CRLB study one panel per group with one colour per case. One legend, outside the data."""
     cases = [c.label for c in study.cases]
+    methods = list(dict.fromkeys(str(r[1]) for r in rows))
     color = {m: method_style(i, 2)["color"] for i, m in enumerate(methods)}
-    color["CRLB"] = "k"
-    for ax, (g, title) in zip(axes, GROUP_TITLES.items(), strict=True):
-        for case, what, t, groups in curves:
-            ls = CASE_STYLES[cases.index(case) % len(CASE_STYLES)]
-            lw = 0.9 if what == "CRLB" else 1.3
-            ax.semilogy(t, groups[g], ls=ls, lw=lw, color=color.get(what, "k"),
-                        label=f"{case}: {what}")  # fmt: skip
-        ax.set_title(title)
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(f"RMS [{UNITS[g]}]")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=2)
-    ax = fig.add_subplot(grid[2, :])
-    metric = study.metric if study.kind == "bench" else "ma_urad_settled"
-    col = SUMMARY_COLUMNS.index(metric) + 1  # rows carry the case label first
+    bench = study.kind == "bench"
+    ncols = len(cases) if bench else 2
+    nrows = len(GROUP_TITLES) if bench else 2
+    fig = plt.figure(figsize=(max(10.0, 3.3 * ncols + 1.5), 2.5 * nrows + 4.5),
+                     layout="constrained")  # fmt: skip
+    grid = fig.add_gridspec(nrows + 1, ncols, height_ratios=[1.0] * nrows + [1.5])
+    axes = []
+    for gi, (g, title) in enumerate(GROUP_TITLES.items()):
+        name = title.split(" [")[0]
+        if bench:
+            first = None
+            for ci, case in enumerate(cases):
+                ax = fig.add_subplot(grid[gi, ci], sharey=first)
+                first = first or ax
+                for c, what, t, groups in curves:
+                    if c != case:
+                        continue
+                    if what == "CRLB":
+                        ax.semilogy(t, groups[g], "k--", lw=0.9, label="CRLB (1σ)")
+                    else:
+                        ax.semilogy(t, groups[g], color=color.get(what, "0.5"), lw=1.3,
+                                    label=what)  # fmt: skip
+                if gi == 0:
+                    ax.set_title(case, fontsize=10)
+                if ci == 0:
+                    ax.set_ylabel(f"{name}\nRMS [{UNITS[g]}]")
+                if gi == nrows - 1:
+                    ax.set_xlabel("time [s]")
+                ax.grid(True, which="both", alpha=0.3)
+                axes.append(ax)
+        else:
+            ax = fig.add_subplot(grid[gi // 2, gi % 2])
+            for c, _, t, groups in curves:
+                ax.semilogy(t, groups[g], lw=1.3, label=c,
+                            color=method_style(cases.index(c), 2)["color"])  # fmt: skip
+            ax.set_title(f"{name}: CRLB (1σ)", fontsize=10)
+            ax.set_ylabel(f"CRLB [{UNITS[g]}]")
+            ax.set_xlabel("time [s]")
+            ax.grid(True, which="both", alpha=0.3)
+            axes.append(ax)
+    ax = fig.add_subplot(grid[nrows, :])
+    col = SUMMARY_COLUMNS.index(study.metric) + 1  # rows carry the case label first
     width = 0.8 / max(1, len(methods))
     for j, m in enumerate(methods):
         cells = [next((r for r in rows if r[0] == lab and r[1] == m), None) for lab in cases]
-        vals = np.array([float(str(r[col])) if r else np.nan for r in cells])
+        vals = np.array([_cell(r[col]) if r else np.nan for r in cells])
         err = None
-        if m != "crlb":
-            lo = np.array([float(str(r[col + 1])) if r else np.nan for r in cells])
-            hi = np.array([float(str(r[col + 2])) if r else np.nan for r in cells])
+        if bench:
+            lo = np.array([_cell(r[col + 1]) if r else np.nan for r in cells])
+            hi = np.array([_cell(r[col + 2]) if r else np.nan for r in cells])
             err = np.vstack([vals - lo, hi - vals])
+        # a CRLB study: each case's bar in the colour of its curves above
+        shade = (
+            color.get(m, "0.5")
+            if bench
+            else [method_style(i, 2)["color"] for i in range(len(cases))]
+        )
         ax.bar(np.arange(len(cases)) + j * width, vals, width, yerr=err, capsize=3,
-               color=color.get(m, "0.5"), label=m)  # fmt: skip
+               color=shade, label=m if bench else None)  # fmt: skip
     ax.set_xticks(np.arange(len(cases)) + 0.4 - width / 2, cases, rotation=15, ha="right")
-    ax.set_yscale("log")
-    group = next(g for g in UNITS if metric.startswith(g))
-    window = metric[len(group) + 1 :]
-    ax.set_ylabel(f"{metric} [{UNITS[group]}]")
-    ax.set_title(f"{metric}: RMS over the {window} window, per case "
-                 f"(error bars: {100 * level:g} % bootstrap over trials)")  # fmt: skip
-    ax.legend(fontsize=8, ncol=min(5, len(methods)))
+    # log only where the values span a decade or more: a log bar starts nowhere in particular,
+    # so over a narrow range its length would exaggerate the differences
+    shown = [_cell(r[col]) for r in rows]
+    positive = [v for v in shown if np.isfinite(v) and v > 0]
+    if positive and max(positive) >= 10 * min(positive):
+        ax.set_yscale("log")
+    group = next(g for g in UNITS if study.metric.startswith(g))
+    window = study.metric[len(group) + 1 :]
+    ax.set_ylabel(f"{study.metric} [{UNITS[group]}]")
+    if bench:
+        what = (f"RMS over the {window} window, per case and method (error bars: "
+                f"{100 * level:g} % bootstrap over trials)")  # fmt: skip
+    else:
+        what = (f"the CRLB (1σ bound) over the {window} window, per case (a bound computed, "
+                "not sampled: no error bars)")  # fmt: skip
+    ax.set_title(f"{study.metric}: {what}", fontsize=10)
     ax.grid(True, axis="y", which="both", alpha=0.3)
+    # one legend for the figure, below everything (the bar colours are the line colours)
+    entries: dict[str, Any] = {}
+    for a in axes:
+        for handle, label in zip(*a.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if "CRLB (1σ)" in entries:  # the methods first, in the order of study.csv
+        entries["CRLB (1σ)"] = entries.pop("CRLB (1σ)")
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center",
+               ncol=min(6, len(entries)), fontsize=9, frameon=False)  # fmt: skip
     fig.suptitle(f"study {study.name}" + (f": {study.description}" if study.description else ""))
-    fig.tight_layout()
-    return figure_png(fig)
+    return fig
 
 
-__all__ = ["CaseRun", "Study", "load_study", "run_study", "run_sweep", "sweep_cases"]
+def _cell(value: object) -> float:
+    """A number of a study row (a float, or its text from study.csv; empty: NaN)."""
+    text = str(value)
+    return float(text) if text else float("nan")
+
+
+__all__ = [
+    "CaseRun",
+    "Study",
+    "case_base",
+    "case_folder",
+    "load_study",
+    "redraw_study",
+    "run_study",
+    "run_sweep",
+    "study_figure",
+    "sweep_cases",
+]

@@ -77,7 +77,7 @@ class AlarmBurst:
     """The ``alarm-burst`` method: tuned once per benchmark in :meth:`prepare`."""
 
     def prepare(self, cfg: Config) -> AlarmBurstSchedule:
-        return AlarmBurstSchedule(tune_oracle(cfg))
+        return AlarmBurstSchedule(tune_oracle(cfg, progress_label="tune alarm-burst"))
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return self.prepare(cfg)(cfg, data)

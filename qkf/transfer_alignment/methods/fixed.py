@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
@@ -26,21 +27,28 @@ def run_kf(cfg: Config, data: ScenarioData) -> MethodOutput:
     return run_fixed(cfg, data, cfg.run.kappa)
 
 
-def tuned_kappa(cfg: Config) -> tuple[float, tuple[float, ...]]:
+def tuned_kappa(
+    cfg: Config, progress_label: str = "tune kf-tuned"
+) -> tuple[float, tuple[float, ...]]:
     """The action whose constant κ gives the lowest time-averaged calibration RMS on the
     tuning trials (seed ``adaptive.tuned.seed``, disjoint from any evaluation seed's streams).
 
     Returns ``(κ*, calibration RMS per action)``; the RMS is over trials, epochs and the nine
-    calibration terms, in 1e-6 (ppm or µrad).
+    calibration terms, in 1e-6 (ppm or µrad). ``progress_label``: the progress row it shows
+    while a benchmark's progress bar is open (:func:`qkf.core.montecarlo.progress_stage`).
     """
     tc = cfg.adaptive.tuned
-    data = simulate(cfg, tc.seed, tc.trials)
     kappas = action_values(cfg)
+    # its own row under the benchmark's progress bar: tuning runs before any trial and takes
+    # a while (one filter run over the tuning trials per action)
+    advance = progress_stage(progress_label, len(kappas), "tuning runs")
+    data = simulate(cfg, tc.seed, tc.trials)
     scores = []
     for kappa in kappas:
         out = run_fixed(cfg, data, float(kappa))
         err = state_errors(out.est, data.q_true, data.bias, data.calib)[..., 6:15]
         scores.append(float(np.sqrt(np.mean(err**2))) / 1e-6)
+        advance(1)
     best = int(np.nanargmin(scores))
     return float(kappas[best]), tuple(scores)
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
@@ -78,20 +79,32 @@ class OracleSchedule:
         return out
 
 
-def tune_oracle(cfg: Config) -> OracleSchedule:
-    """Coordinate search for ``(κ_base, κ_after, W)`` on the tuning seeds (module docstring)."""
+def tune_oracle(cfg: Config, progress_label: str = "tune oracle") -> OracleSchedule:
+    """Coordinate search for ``(κ_base, κ_after, W)`` on the tuning seeds (module docstring).
+
+    ``progress_label``: the progress row it shows, with its count of filter runs, while a
+    benchmark's progress bar is open (:func:`qkf.core.montecarlo.progress_stage`).
+    """
     tc = cfg.adaptive.tuned
     data = simulate(cfg, tc.seed, tc.trials)
     kappas = [float(k) for k in action_values(cfg)]
     n = data.n_epochs
+    jumps = data.jump_t is not None and bool(np.isfinite(data.jump_t).any())
+    # the count is known beforehand: every κ_base; with a jump, the constant κ_base once more
+    # and every (κ_after ≠ κ_base, W)
+    windows = len(cfg.adaptive.oracle.windows_s)
+    runs = len(kappas) + (1 + (len(kappas) - 1) * windows if jumps else 0)
+    advance = progress_stage(progress_label, runs, "tuning runs")
 
     def score(base: float, after: float, window: float) -> float:
         kap = schedule(data, base, after, window) if after != base else np.full((1, n), base)
         kap = np.broadcast_to(kap, (data.n_trials, n))
-        return settled_score(cfg, data, run_schedule(cfg, data, kap))
+        value = settled_score(cfg, data, run_schedule(cfg, data, kap))
+        advance(1)
+        return value
 
     base = min(kappas, key=lambda k: score(k, k, 0.0))
-    if data.jump_t is None or not np.isfinite(data.jump_t).any():
+    if not jumps:
         return OracleSchedule(base, base, 0.0)
     best = (score(base, base, 0.0), base, 0.0)
     for after in kappas:
