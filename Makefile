@@ -1,6 +1,7 @@
 # qkf: two commands set up a fresh machine and do the work.
 #   make bench   create .venv, install, run the main benchmark (results/paper/)
-#   make test    create .venv, install, run the test suite (spread over the cores)
+#   make test    create .venv, install, run the whole test suite (spread over the cores)
+#   make test-fast   the same without the tests marked slow: the check to run while working
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -8,7 +9,7 @@ STAMP := $(VENV)/.installed
 # torch first and pinned: the CPU wheel on disk; any other spec pulls the CUDA stack.
 TORCH := torch==2.13.0
 
-.PHONY: install bench test lint typecheck speed clean
+.PHONY: install bench test test-fast lint typecheck speed clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -20,10 +21,15 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 bench: $(STAMP)
-	$(BIN)/qkf bench configs/paper.yaml --out results/paper --overwrite
+	$(BIN)/qkf bench paper --out results/paper --overwrite
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n auto
+
+# Long Monte Carlo statistics, training and wheel builds are marked slow (pyproject.toml,
+# [tool.pytest.ini_options]); `make test` and CI (.ci/run) still run them.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -n auto -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

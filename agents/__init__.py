@@ -1,2 +1,8 @@
-"""Agents that choose the filter's process-noise scale: tabular Q-learning, SB3 agents and
-baseline policies. Populated by the environments-and-agents issue."""
+"""Agents that choose the filter's process-noise scale κ through the environments of :mod:`envs`.
+
+The algorithms by name (:mod:`.algorithms`: tabular Q-learning and the Stable-Baselines3
+agents), their training (:mod:`.training`, :mod:`.config`), a saved agent as a benchmark method
+(:mod:`.policy`, ``--methods policy:PATH``), the zoo of shipped policies (:mod:`.zoo`) and the
+commands ``qkf train``, ``evaluate`` and ``zoo`` (:mod:`.cli`). The baselines an agent is judged
+against are the methods of :mod:`qkf.transfer_alignment.methods`, not policies of this package.
+"""

@@ -1,14 +1,13 @@
-"""Training configs (``configs/train_*.yaml``): the schema and its loader (no torch needed).
+"""Training configs (``configs/training/*.yaml``): the schema and its loader (no torch needed).
 
 ::
 
     agent: ppo                 # a name of agents.algorithms.ALGORITHMS
-    env: qkf/TransferAlignment-v0  # or -v1 (order-one observation), or
-                                   # qkf/RedundantGyroCalibration-v0 (a gyros scenario)
-    scenario: thermal_snap     # preset name or config path
+    env: qkf/TransferAlignment-v2  # an id of envs.ENVIRONMENTS (default: -v0)
+    scenario: thermal_snap     # preset name or config path, of the environment's problem
     overrides: []              # --set style overrides of the scenario
     action_type: discrete      # must suit the agent (sac: continuous)
-    reward: likelihood         # a name of the environment's rewards (envs.rewards.REWARDS)
+    reward: likelihood         # a name of the environment's rewards (ENVIRONMENTS[env].rewards)
     period_s: 10               # decision period of the environment, s
     n_envs: 16
     seed: 0
@@ -21,9 +20,12 @@
 
 :func:`load_train_config` checks everything a training run will use before any work, and
 reports every problem at once, one line each (``FILE: dotted.field: message``): the schema,
-the action type against the agent, the scenario and its ``overrides`` (loaded as the run will
-load them), the ``hyperparams`` against the SB3 algorithm's constructor (this imports SB3, so
-only for SB3 agents: a tabular policy never loads torch) and the ``tabular`` settings.
+the action type against the agent, the reward against the environment's, the scenario and its
+``overrides`` (loaded as the run will load them, by the environment's own check), the
+``hyperparams`` against the SB3 algorithm's constructor (this imports SB3, so only for SB3
+agents: a tabular policy never loads torch) and the ``tabular`` settings (bins against the
+environment's observation size). Everything about the environment comes from its entry in
+:data:`envs.ENVIRONMENTS`.
 """
 
 from __future__ import annotations
@@ -37,13 +39,9 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 
 from agents.algorithms import ALGORITHMS, algorithm_class
-from envs import ENV_ID, ENV_ID_V1, ENV_ID_V2, GYRO_ENV_ID, TA_ENV_OBSERVATIONS
-from envs.observations import OBSERVATIONS
-from envs.redundant_gyro import GYRO_REWARDS
-from envs.rewards import REWARDS
+from envs import ENV_ID, ENVIRONMENTS
 from qkf.core import presets
-from qkf.core.config import ConfigError, StrictModel, load_model
-from qkf.core.registry import Registry
+from qkf.core.config import ConfigError, StrictModel
 
 HEADER = "invalid training config"
 
@@ -68,18 +66,9 @@ class EvalConfig(StrictModel):
     every_steps: Annotated[int, Field(ge=1)] = 20_000
 
 
-ENV_REWARDS: dict[str, Registry[Any]] = {
-    ENV_ID: REWARDS,
-    ENV_ID_V1: REWARDS,
-    ENV_ID_V2: REWARDS,
-    GYRO_ENV_ID: GYRO_REWARDS,
-}
-"""The environments ``qkf train`` can train on, with their reward registries."""
-
-
 class TrainConfig(StrictModel):
     agent: str
-    env: str = ENV_ID
+    env: str = ENV_ID  # configs written before env: existed train on the v0 environment
     scenario: str = "paper"
     overrides: list[str] = Field(default_factory=list)
     action_type: Literal["discrete", "continuous"] = "discrete"
@@ -105,21 +94,27 @@ class TrainConfig(StrictModel):
     @field_validator("env")
     @classmethod
     def _known_env(cls, v: str) -> str:
-        if v not in ENV_REWARDS:
-            raise ValueError(f"unknown env {v!r}; known: {', '.join(ENV_REWARDS)}")
+        if v not in ENVIRONMENTS:
+            raise ValueError(f"unknown env {v!r}; known: {', '.join(ENVIRONMENTS.names())}")
         return v
 
     @field_validator("reward")
     @classmethod
     def _known_reward(cls, v: str) -> str:
-        if v not in REWARDS and v not in GYRO_REWARDS:
-            raise ValueError(f"unknown reward {v!r}; known: {', '.join(REWARDS.names())}")
+        """A reward of some environment (the env's own are checked with the whole config)."""
+        known = list(dict.fromkeys(n for e in ENVIRONMENTS for n in ENVIRONMENTS[e].rewards))
+        if v not in known:
+            raise ValueError(f"unknown reward {v!r}; known: {', '.join(known)}")
         return v
+
+
+PRESETS = "training"
+"""The training configs' preset folder (``configs/training/``)."""
 
 
 def train_config_source(path: str | Path, sets: list[str] | None = None) -> str:
     """How messages name a training config: its resolved file, ``(with --set)`` if overridden."""
-    return f"{presets.resolve(path)}" + (" (with --set)" if sets else "")
+    return f"{presets.resolve(path, PRESETS)}" + (" (with --set)" if sets else "")
 
 
 def load_train_config(
@@ -128,7 +123,7 @@ def load_train_config(
     """Read and validate a training config (path or preset name); ``ConfigError`` names the
     file and the field. ``check_scenario=False`` skips loading the scenario (a saved policy
     acts on any scenario; its training scenario may be a path relative to another folder)."""
-    cfg = load_model(TrainConfig, presets.resolve(path), sets, "training config")
+    cfg = presets.load_preset(TrainConfig, path, PRESETS, sets, "training config")
     validate_train_config(cfg, train_config_source(path, sets), check_scenario=check_scenario)
     return cfg
 
@@ -140,69 +135,25 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
     if cfg.action_type not in algo.action_types:
         needs = " or ".join(algo.action_types)
         problems.append(f"action_type: {cfg.agent} needs {needs} actions")
-    rewards = ENV_REWARDS[cfg.env]
-    if cfg.reward not in rewards:
+    env = ENVIRONMENTS[cfg.env]
+    if cfg.reward not in env.rewards:
         problems.append(
-            f"reward: {cfg.env} has no reward {cfg.reward!r}; known: {', '.join(rewards)}"
+            f"reward: {cfg.env} has no reward {cfg.reward!r}; known: {', '.join(env.rewards)}"
         )
     if check_scenario:
-        problems += _scenario_problems(cfg)
+        problems += env.check_scenario(cfg.scenario, cfg.overrides)
     if algo.load is None:  # the tabular agent
         if cfg.hyperparams:
             problems.append(
                 "hyperparams: the tabular agent takes no SB3 hyperparameters (use tabular:)"
             )
-        problems += _tabular_problems(cfg.tabular, _observation_size(cfg.env))
+        problems += _tabular_problems(cfg.tabular, env.observation_size)
     else:
         if cfg.tabular:
             problems.append(f"tabular: only the tabular agent reads it, not {cfg.agent}")
         problems += _hyperparam_problems(algorithm_class(cfg.agent), cfg.hyperparams)
     if problems:
         raise ConfigError(f"{HEADER}\n  " + "\n  ".join(f"{source}: {p}" for p in problems))
-
-
-def _message_lines(exc: ConfigError) -> list[str]:
-    """The problem lines of a ``ConfigError`` (its ``invalid …`` header dropped)."""
-    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    if len(lines) > 1 and lines[0].startswith("invalid "):
-        lines = lines[1:]
-    return lines
-
-
-def _scenario_problems(cfg: TrainConfig) -> list[str]:
-    if cfg.env == GYRO_ENV_ID:
-        return _gyro_scenario_problems(cfg)
-    from qkf.transfer_alignment.config import load_config
-
-    if Path(cfg.scenario).is_dir():
-        return [f"scenario: {cfg.scenario}: is a directory, not a scenario file"]
-    try:
-        load_config(cfg.scenario)
-    except ConfigError as exc:
-        return [f"scenario: {line}" for line in _message_lines(exc)]
-    if cfg.overrides:
-        try:
-            load_config(cfg.scenario, list(cfg.overrides))
-        except ConfigError as exc:
-            return [f"overrides: {line}" for line in _message_lines(exc)]
-    return []
-
-
-def _gyro_scenario_problems(cfg: TrainConfig) -> list[str]:
-    from qkf.redundant_gyros.config import load_config
-    from qkf.redundant_gyros.geometry import build_unit
-    from qkf.redundant_gyros.pipeline import fault_target
-    from qkf.redundant_gyros.scenario import epochs
-
-    key = "overrides" if cfg.overrides else "scenario"
-    try:
-        gcfg = load_config(cfg.scenario, list(cfg.overrides))
-        fault_target(gcfg, build_unit(gcfg), epochs(gcfg.scenario.duration_s, gcfg.scenario.dt_s))
-    except ConfigError as exc:
-        return [f"{key}: {line}" for line in _message_lines(exc)]
-    except ValueError as exc:
-        return [f"scenario: {exc}"]
-    return []
 
 
 def _unknown(key: str, known: list[str], owner: str) -> str:
@@ -232,15 +183,6 @@ def _hyperparam_problems(cls: Any, hyperparams: dict[str, Any]) -> list[str]:
         ):
             problems.append(f"hyperparams.n_steps: must be a positive integer, got {value!r}")
     return problems
-
-
-def _observation_size(env: str) -> int:
-    """Length of the observation of a training environment."""
-    if env in TA_ENV_OBSERVATIONS:
-        return OBSERVATIONS[TA_ENV_OBSERVATIONS[env]].size
-    from envs.redundant_gyro import OBS_SIZE as GYRO_OBS_SIZE
-
-    return GYRO_OBS_SIZE
 
 
 def _tabular_problems(tabular: dict[str, Any], obs_size: int) -> list[str]:

@@ -6,9 +6,10 @@
 ``config.yaml`` its training wrote beside it (``qkf train`` does): it says which agent, action
 type and decision period the policy was trained with.
 
-The policy sees the environment's observation (:mod:`envs.episodes`) every decision period and
-its action sets κ for the next period; everything else is the filter of every other method, run
-on the same simulated trials.
+The policy sees its environment's observation (the batched episodes of
+:mod:`envs.transfer_alignment.episodes`, with the observation version of the id it was trained
+on, from :data:`envs.ENVIRONMENTS`) every decision period and its action sets κ for the next
+period; everything else is the filter of every other method, run on the same simulated trials.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ import numpy as np
 
 from agents.algorithms import algorithm_class
 from agents.config import load_train_config
-from envs import TA_ENV_OBSERVATIONS
-from envs.episodes import ActionMap, BatchedEpisodes
+from envs import ENVIRONMENTS
+from envs.common import ActionMap
+from envs.transfer_alignment import BatchedEpisodes
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, per_epoch
@@ -36,15 +38,14 @@ class Policy:
         path = _model_file(path)
         # any scenario will do: the training one may be a path relative to elsewhere
         self.cfg = load_train_config(path.parent / "config.yaml", check_scenario=False)
-        self._tab: Any = None
-        self._sb3: Any = None
+        self._model: Any = None  # SB3's predict() interface, which the tabular agent shares
         try:
             if path.suffix == ".npz":
                 from agents.tabular import TabularQAgent
 
-                self._tab = TabularQAgent.load(path)
+                self._model = TabularQAgent.load(path)
             else:
-                self._sb3 = algorithm_class(self.cfg.agent).load(path, device="cpu")
+                self._model = algorithm_class(self.cfg.agent).load(path, device="cpu")
         except Exception as exc:  # a corrupt or foreign file: SB3/numpy raise many kinds
             what = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
             raise ConfigError(
@@ -52,9 +53,8 @@ class Policy:
             ) from None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        if self._tab is not None:
-            return np.asarray(self._tab.act(obs, deterministic=True))
-        action, _ = self._sb3.predict(obs, deterministic=True)
+        """The greedy actions for observations (N, size)."""
+        action, _ = self._model.predict(obs, deterministic=True)
         return np.asarray(action)
 
 
@@ -62,11 +62,12 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
     policy = Policy(path)
     actions = ActionMap(np.asarray(cfg.adaptive.actions.values()), policy.cfg.action_type)
-    observation = TA_ENV_OBSERVATIONS.get(policy.cfg.env)
-    if observation is None:
+    env = ENVIRONMENTS[policy.cfg.env]
+    if env.problem != "transfer_alignment" or env.observation is None:
         raise ConfigError(
             f"{path}: trained on {policy.cfg.env}, not a transfer-alignment environment"
         )
+    observation = env.observation
     core = BatchedEpisodes(
         cfg, data.n_trials, "likelihood", policy.cfg.period_s, observation=observation
     )

@@ -25,7 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from envs.episodes import BatchedEpisodes
+from envs.transfer_alignment.episodes import BatchedEpisodes
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from envs import TransferAlignmentEnv, TransferAlignmentVectorEnv
+from envs import BatchedTransferAlignmentEnv, TransferAlignmentEnv
 
 
 def rate(step, n_envs: int, seconds: float) -> float:  # type: ignore[no-untyped-def]
@@ -44,7 +44,7 @@ def main() -> None:
     base = rate(single_step, 1, args.seconds)
     print(f"single env: {base:10,.0f} env-steps/s  {base * period:12,.0f} filter-steps/s")
     for n in (int(s) for s in args.sizes.split(",")):
-        vec = TransferAlignmentVectorEnv(n)
+        vec = BatchedTransferAlignmentEnv(n)
         vec.reset(seed=0)
         r = rate(lambda v=vec, n=n: v.step(rng.integers(0, 11, n)), n, args.seconds)
         print(
@@ -63,18 +63,18 @@ def ppo_fps(steps: int) -> None:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from agents.common.vec_env import TransferAlignmentVecEnv
+    from envs.transfer_alignment.sb3 import BatchedTransferAlignmentSB3Env
 
     torch.set_num_threads(1)
 
-    def zoo_env() -> TransferAlignmentVecEnv:
-        return TransferAlignmentVecEnv(
+    def zoo_env() -> BatchedTransferAlignmentSB3Env:
+        return BatchedTransferAlignmentSB3Env(
             16, "thermal_snap_random", reward="misalignment_gain", observation="v2"
         )
 
     for name, env in (
         ("PPO, 1 env (DummyVecEnv)", DummyVecEnv([TransferAlignmentEnv])),
-        ("PPO, 16 envs (batched VecEnv)", TransferAlignmentVecEnv(16)),
+        ("PPO, 16 envs (batched VecEnv)", BatchedTransferAlignmentSB3Env(16)),
         ("PPO, 16 envs, v2 + misalignment_gain", zoo_env()),
     ):
         model = PPO("MlpPolicy", env, n_steps=max(64, 2048 // env.num_envs), seed=0, device="cpu")

@@ -114,7 +114,7 @@ def full_reference_rate(cfg, epochs: int) -> float:  # type: ignore[no-untyped-d
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--config", default=str(ROOT / "configs" / "paper.yaml"))
+    ap.add_argument("--config", default="paper", help="preset name or YAML path")
     ap.add_argument("--batches", default="1,16,256,1024", help="comma-separated batch sizes B")
     ap.add_argument("--ref-trials", type=int, default=4, help="trials timed for filterpy")
     ap.add_argument("--block", type=int, default=100, help="epochs per kernel call")

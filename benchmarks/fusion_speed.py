@@ -19,8 +19,8 @@ import tracemalloc
 
 from qkf.sca_fusion.config import load_config
 from qkf.sca_fusion.data import Series
-from qkf.sca_fusion.simulate import simulate
-from qkf.sca_fusion.solve.fusion import ArcSolution, arcs_from_series, fuse_arc
+from qkf.sca_fusion.fusion import ArcSolution, arcs_from_series, fuse_arc
+from qkf.sca_fusion.scenario import simulate
 
 
 def _fuse(hours: float) -> tuple[float, float, ArcSolution]:

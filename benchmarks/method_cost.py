@@ -1,6 +1,6 @@
 """Cost of the adaptive methods per filter-step, relative to the fixed-Q KF, in one run.
 
-Run: ``.venv/bin/python benchmarks/method_cost.py [--trials 64] [--config configs/paper.yaml]``.
+Run: ``.venv/bin/python benchmarks/method_cost.py [--trials 64] [--config paper]``.
 
 Every method filters the same simulated trials; the time of each (best of ``--repeats``) is
 divided by trials × epochs and printed with its ratio to ``kf``. ``kf-tuned`` is timed after
@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--config", default=str(ROOT / "configs" / "paper.yaml"))
+    ap.add_argument("--config", default="paper", help="preset name or YAML path")
     ap.add_argument("--trials", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--set", action="append", default=[], help="config override key=value")

@@ -23,7 +23,9 @@ import sys
 from pathlib import Path
 
 BENCH_PRESETS = ("paper", "thermal_snap", "thermal_snap_random")
-METHODS = "all,oracle,alarm-burst"
+METHODS = (
+    "kf,kf-tuned,sage-husa,qkf,mmae,imm,fading,vbakf,covariance-matching,batch,oracle,alarm-burst"
+)
 TRIALS = "8"
 BENCH_FILES = ("rms.csv", "trials.csv", "kappa.csv", "paired.csv", "nees.csv")
 GYRO_BACKENDS: tuple[tuple[str, list[str]], ...] = (

@@ -9,7 +9,11 @@ import pytest
 from qkf.transfer_alignment.config import Config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = ROOT / "configs"
+CONFIGS = ROOT / "configs" / "transfer_alignment"
+TRAINING = ROOT / "configs" / "training"
+GYRO_CONFIGS = ROOT / "configs" / "redundant_gyros"
+FUSION_CONFIGS = ROOT / "configs" / "sca_fusion"
+ALIGNMENT_CONFIGS = ROOT / "configs" / "alignment"
 
 
 @pytest.fixture

@@ -2,27 +2,29 @@
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from agents.common.vec_env import TransferAlignmentVecEnv
 from agents.config import load_train_config
 from agents.policy import Policy
 from agents.tabular import TabularQAgent, train_tabular
 from agents.training import train
 from envs import TransferAlignmentEnv
+from envs.transfer_alignment.sb3 import BatchedTransferAlignmentSB3Env
 from qkf.cli import app
 from qkf.transfer_alignment.config import ConfigError
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, TRAINING
 
 SHORT = ["scenario.duration_s=200"]
 
 
 def test_vec_env_matches_single_env_and_autoresets() -> None:
-    vec = TransferAlignmentVecEnv(2, overrides=SHORT)
+    vec = BatchedTransferAlignmentSB3Env(2, overrides=SHORT)
     vec.seed(5)
     obs = vec.reset()
     singles = [TransferAlignmentEnv(overrides=SHORT) for _ in range(2)]
@@ -43,7 +45,7 @@ def test_vec_env_matches_single_env_and_autoresets() -> None:
 def test_tabular_agent_learns_deterministically_and_round_trips(tmp_path: Path) -> None:
     def run() -> TabularQAgent:
         agent = TabularQAgent(n_actions=11, seed=3)
-        env = TransferAlignmentVecEnv(4, overrides=SHORT)
+        env = BatchedTransferAlignmentSB3Env(4, overrides=SHORT)
         env.seed(0)
         returns = train_tabular(agent, env, episodes=8)
         assert len(returns) == 8 and np.all(np.isfinite(returns))
@@ -74,7 +76,7 @@ def test_tabular_update_by_hand() -> None:
 
 def test_tiny_ppo_training_saves_and_reloads(tmp_path: Path) -> None:
     cfg = load_train_config(
-        CONFIGS / "train_ppo.yaml",
+        TRAINING / "train_ppo.yaml",
         [
             "total_steps=256",
             "n_envs=4",
@@ -95,9 +97,9 @@ def test_tiny_ppo_training_saves_and_reloads(tmp_path: Path) -> None:
 
 def test_train_config_errors() -> None:
     with pytest.raises(ConfigError, match="sac needs continuous"):
-        load_train_config(CONFIGS / "train_sac.yaml", ["action_type=discrete"])
+        load_train_config(TRAINING / "train_sac.yaml", ["action_type=discrete"])
     with pytest.raises(ConfigError, match="invalid training config"):
-        load_train_config(CONFIGS / "train_ppo.yaml", ["agent=nope"])
+        load_train_config(TRAINING / "train_ppo.yaml", ["agent=nope"])
 
 
 def test_train_command_tabular(tmp_path: Path) -> None:
@@ -105,7 +107,7 @@ def test_train_command_tabular(tmp_path: Path) -> None:
         app,
         [
             "train",
-            str(CONFIGS / "train_tabular.yaml"),
+            str(TRAINING / "train_tabular.yaml"),
             "--out",
             str(tmp_path),
             "--quiet",
@@ -122,6 +124,7 @@ def test_train_command_tabular(tmp_path: Path) -> None:
     assert Policy(tmp_path / "model.npz").act(np.zeros((2, 9), np.float32)).shape == (2,)
 
 
+@pytest.mark.slow  # trains an agent, then benchmarks and evaluates it
 def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
     runner = CliRunner()
     sets = [
@@ -136,7 +139,7 @@ def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
         app,
         [
             "train",
-            str(CONFIGS / "train_tabular.yaml"),
+            str(TRAINING / "train_tabular.yaml"),
             "--out",
             str(tmp_path / "m"),
             "--quiet",
@@ -188,7 +191,7 @@ def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
 @pytest.mark.parametrize("name", ["train_a2c", "train_sac", "train_dqn", "train_ppo_continuous"])
 def test_every_shipped_sb3_config_trains_a_few_steps(name: str, tmp_path: Path) -> None:
     cfg = load_train_config(
-        CONFIGS / f"{name}.yaml",
+        TRAINING / f"{name}.yaml",
         [
             "total_steps=64",
             "n_envs=2",
@@ -209,20 +212,46 @@ def test_every_shipped_sb3_config_trains_a_few_steps(name: str, tmp_path: Path) 
     assert action.shape[0] == 3
 
 
+def _weights(path: Path) -> list[np.ndarray]:
+    from stable_baselines3 import PPO
+
+    model = PPO.load(path, device="cpu")
+    return [p.detach().numpy().copy() for p in model.policy.parameters()]
+
+
 def test_sb3_training_resumes_from_the_last_checkpoint(tmp_path: Path) -> None:
+    """A resume goes on from the newest checkpoint, deterministically: resumed twice from the
+    same checkpoint, it trains the same network and records the same evaluations."""
     sets = [
         "n_envs=2",
         "overrides=[scenario.duration_s=100]",
         "hyperparams={n_steps: 16, batch_size: 16, n_epochs: 1}",
         "eval={episodes: 1, seed: 100000, every_steps: 32}",
     ]
-    train(load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=64"]), tmp_path, False)
-    first = sorted((tmp_path / "checkpoints").glob("*.zip"))
+    run = tmp_path / "run"
+    train(load_train_config(TRAINING / "train_ppo.yaml", [*sets, "total_steps=64"]), run, False)
+    first = sorted((run / "checkpoints").glob("*.zip"))
     assert first
+    shutil.copytree(run, tmp_path / "again")
     from stable_baselines3 import PPO
 
-    longer = load_train_config(CONFIGS / "train_ppo.yaml", [*sets, "total_steps=128"])
-    train(longer, tmp_path, False, resume=True)  # a changed total_steps needs --resume
-    model = PPO.load(tmp_path / "model.zip", device="cpu")
+    longer = load_train_config(TRAINING / "train_ppo.yaml", [*sets, "total_steps=128"])
+    for folder in (run, tmp_path / "again"):
+        train(longer, folder, False, resume=True)  # a changed total_steps needs --resume
+    model = PPO.load(run / "model.zip", device="cpu")
     assert model.num_timesteps == 128  # 64 from the checkpoint, 64 more: not 128 from scratch + 64
-    assert len(sorted((tmp_path / "checkpoints").glob("*.zip"))) > len(first)
+    assert len(sorted((run / "checkpoints").glob("*.zip"))) > len(first)
+    assert json.loads((run / "training.json").read_text())["resumed_from"] == [first[-1].name]
+    again = _weights(tmp_path / "again" / "model.zip")
+    assert all(
+        np.array_equal(a, b) for a, b in zip(_weights(run / "model.zip"), again, strict=True)
+    )
+    with (
+        np.load(run / "eval" / "evaluations.npz") as z,
+        np.load(tmp_path / "again" / "eval" / "evaluations.npz") as z2,
+    ):
+        assert z["timesteps"].tolist() == [32, 64, 96, 128]  # kept up to the checkpoint, then on
+        for key in ("timesteps", "results", "ep_lengths"):
+            np.testing.assert_array_equal(z[key], z2[key])
+    # SB3's callbacks wrote into staging folders; nothing is left of them
+    assert not list(run.rglob(".staging"))

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.episodes import BatchedEpisodes
-from envs.observations import TIME_SCALE_S
+from envs.transfer_alignment.episodes import BatchedEpisodes
+from envs.transfer_alignment.observations import TIME_SCALE_S
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods import BUILTIN_METHODS, METHODS
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule, nis_per_row

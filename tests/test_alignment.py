@@ -11,7 +11,7 @@ from scipy import stats
 from qkf.alignment.config import load_config
 from qkf.alignment.data import Observations
 from qkf.alignment.model import form_pairs, jacobian, pair_covariance, residuals, rotated
-from qkf.alignment.simulate import simulate
+from qkf.alignment.scenario import simulate
 from qkf.alignment.solve import solve
 from qkf.core import units
 

@@ -32,6 +32,7 @@ def test_process_pool_matches_in_process(inline) -> None:  # type: ignore[no-unt
             np.testing.assert_array_equal(a.kappa, b.kappa)
 
 
+@pytest.mark.slow  # starts a Ray cluster
 def test_ray_matches_local(inline) -> None:  # type: ignore[no-untyped-def]
     if os.environ.get("CI"):
         # CI installs the extra: there the backend must be tested, not skipped

@@ -7,6 +7,7 @@ import importlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
@@ -86,6 +87,7 @@ def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow  # three Monte Carlo benchmarks
 def test_same_seed_same_numbers(tmp_path: Path) -> None:
     _bench(tmp_path / "a", "--methods", PAPER_METHODS)
     _bench(tmp_path / "b", "--methods", PAPER_METHODS)

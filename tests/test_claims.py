@@ -14,7 +14,7 @@ from qkf.transfer_alignment.claims import load_claims
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
 runner = CliRunner()
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "transfer_alignment"
 P, A = CONFIGS / "paper.yaml", CONFIGS / "attitude_only.yaml"
 
 STUDY = f"""

@@ -30,11 +30,11 @@ import qkf.transfer_alignment.config as ta
 import qkf.transfer_alignment.study
 from qkf.cli import app
 from qkf.core.config import ConfigError, StrictModel, load_yaml
-from tests.conftest import CONFIGS
+from tests.conftest import ALIGNMENT_CONFIGS
 
 runner = CliRunner()
 
-ALIGNMENT = yaml.safe_load((CONFIGS / "alignment_three_sensors.yaml").read_text())
+ALIGNMENT = yaml.safe_load((ALIGNMENT_CONFIGS / "alignment_three_sensors.yaml").read_text())
 """A complete alignment config (its schema has required keys), to spoil one value of."""
 
 

@@ -17,13 +17,13 @@ from typer.testing import CliRunner
 
 from qkf.alignment.config import load_config as load_alignment
 from qkf.alignment.data import write_data_text
-from qkf.alignment.simulate import simulate as simulate_alignment
+from qkf.alignment.scenario import simulate as simulate_alignment
 from qkf.cli import app
 from qkf.redundant_gyros.config import load_config as load_gyros
 from qkf.redundant_gyros.pipeline import simulate_run
 from qkf.sca_fusion.config import load_config as load_fusion
 from qkf.sca_fusion.data import MIN_OVERLAP_FRACTION
-from qkf.sca_fusion.simulate import simulate as simulate_fusion
+from qkf.sca_fusion.scenario import simulate as simulate_fusion
 
 runner = CliRunner()
 SCA_HEADER = ["t_s", "q_x", "q_y", "q_z", "q_w"]

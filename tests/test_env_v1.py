@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 import envs
-from envs.episodes import BatchedEpisodes
-from envs.observations import (
+from envs.transfer_alignment.episodes import BatchedEpisodes
+from envs.transfer_alignment.observations import (
     CUSUM_DRIFT,
-    NIS_ALARM,
     OBSERVATIONS,
     ONSET_CAP_S,
     TIME_SCALE_S,
@@ -20,7 +19,7 @@ from envs.observations import (
     PeriodView,
 )
 from qkf.core.stats import interquartile_mean
-from qkf.transfer_alignment.alarms import QUIET_S
+from qkf.transfer_alignment.alarms import NIS_ALARM, QUIET_S
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.filter import FilterRecord
 from qkf.transfer_alignment.methods.oracle import run_schedule
@@ -60,7 +59,7 @@ def _view(nis_per_row: float, rate_deg_s: np.ndarray, n_meas: int = 6, p: int = 
 
 
 def test_v1_statistics_follow_a_hand_computation() -> None:
-    obs_v1 = ObservationV1(1, 10.0)
+    obs_v1 = ObservationV1(load_config("paper"), 1, 10.0)  # the default alarm settings
     first = obs_v1.reset(np.array([0]), 0.5)
     assert first.shape == (1, 12) and first[0, 11] == 0.5 and not first[0, :11].any()
     still, turn = np.array([0.0, 0.0, 0.06]), np.array([1.0, 0.0, 0.06])
@@ -89,7 +88,8 @@ def test_v1_statistics_follow_a_hand_computation() -> None:
 def test_v2_change_age_follows_a_hand_computation() -> None:
     """The age restarts at an alarm after ≥ QUIET_S of calm only: the alarms that the same
     change raises at the following rotation axes do not restart it."""
-    obs_v1, obs_v2 = ObservationV1(1, 10.0), ObservationV2(1, 10.0)
+    cfg = load_config("paper")  # the default alarm settings: NIS_ALARM, QUIET_S
+    obs_v1, obs_v2 = ObservationV1(cfg, 1, 10.0), ObservationV2(cfg, 1, 10.0)
     first = obs_v2.reset(np.array([0]), 0.5)
     obs_v1.reset(np.array([0]), 0.5)
     assert first.shape == (1, 13) and first[0, 11] == 0.5

@@ -12,7 +12,13 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import envs
-from envs import ENV_ID, ENV_ID_V1, ENV_ID_V2, TransferAlignmentEnv, TransferAlignmentVectorEnv
+from envs import (
+    ENV_ID,
+    ENV_ID_V1,
+    ENV_ID_V2,
+    BatchedTransferAlignmentEnv,
+    TransferAlignmentEnv,
+)
 
 SHORT = ["scenario.duration_s=400"]
 
@@ -46,7 +52,7 @@ def test_registration() -> None:
     assert env.unwrapped.cfg.name == "thermal-snap"
     assert env.action_space == gym.spaces.Discrete(11)
     vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point")
-    assert isinstance(vec.unwrapped, TransferAlignmentVectorEnv)
+    assert isinstance(vec.unwrapped, BatchedTransferAlignmentEnv)
 
 
 def _episode(env: TransferAlignmentEnv, seed: int, actions: list[int]) -> list[tuple]:
@@ -73,7 +79,7 @@ def test_same_seed_same_episode() -> None:
 
 def test_vector_env_equals_single_envs_step_for_step() -> None:
     n = 3
-    vec = TransferAlignmentVectorEnv(n, overrides=SHORT)
+    vec = BatchedTransferAlignmentEnv(n, overrides=SHORT)
     singles = [TransferAlignmentEnv(overrides=SHORT) for _ in range(n)]
     obs, _ = vec.reset(seed=10)
     np.testing.assert_array_equal(
@@ -165,7 +171,7 @@ def test_render_mode() -> None:
 
 
 def test_a_registered_reward_is_usable_by_name() -> None:
-    from envs.rewards import REWARDS, Reward
+    from envs import REWARDS, Reward
 
     def minus_nis(o):  # type: ignore[no-untyped-def]
         return -o.period_mean(np.nan_to_num(o.record.nis_att))

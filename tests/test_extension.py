@@ -74,6 +74,7 @@ def _rms(res) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
     return {m.name: m.rms for m in res.methods}
 
 
+@pytest.mark.slow  # a process pool and a Ray cluster
 def test_user_method_runs_identically_under_every_backend(user_module: str) -> None:
     cfg = cfg_with(*SETS)
     spec = [f"half={user_module}:run_half_kappa", "kf"]

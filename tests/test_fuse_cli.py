@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from qkf.cli import app
 from qkf.sca_fusion.config import load_config
-from qkf.sca_fusion.simulate import simulate
+from qkf.sca_fusion.scenario import simulate
 
 SHORT = [
     "--set",

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 import envs
 from agents.config import TrainConfig, validate_train_config
-from envs.redundant_gyro import GYRO_REWARDS, RedundantGyroCalibrationEnv
+from envs.redundant_gyros import GYRO_REWARDS, RedundantGyroCalibrationEnv
 from qkf.cli import app
 from qkf.core.config import ConfigError
 

@@ -147,6 +147,7 @@ def test_mmae_combination_of_two_models() -> None:
     np.testing.assert_allclose(rel, [0.0, -0.25 * 0.002, 0.0], atol=1e-12)
 
 
+@pytest.mark.slow  # a fixed KF per κ of the action set, twice
 def test_tuned_kappa_is_the_best_on_its_own_seeds() -> None:
     cfg = cfg_with("scenario.duration_s=400", "adaptive.tuned.trials=3")
     kappa, scores = tuned_kappa(cfg)

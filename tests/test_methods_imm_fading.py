@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qkf.transfer_alignment.config import load_config
+from qkf.core.config import ConfigError
+from qkf.transfer_alignment.config import FadingConfig, ImmConfig, load_config
 from qkf.transfer_alignment.methods import METHODS, validate_output
 from qkf.transfer_alignment.methods.base import action_values, new_filter
 from qkf.transfer_alignment.methods.fading import (
-    FadingParams,
     attitude_innovation,
     fading_factor,
     fading_filter,
@@ -26,7 +26,6 @@ from qkf.transfer_alignment.methods.fading import (
     transition,
 )
 from qkf.transfer_alignment.methods.imm import (
-    ImmParams,
     imm_filter,
     mix_bank,
     mix_moments,
@@ -246,17 +245,21 @@ def test_mixing_spreads_differing_estimates_into_the_covariance() -> None:
     assert not bank.diverged.any()
 
 
-def test_imm_params_from_config() -> None:
-    assert ImmParams.from_config(load_config("paper")) == ImmParams()
-    cfg = SimpleNamespace(
-        adaptive=SimpleNamespace(imm=SimpleNamespace(p_stay=0.9, switching="neighbours"))
+def test_imm_settings_are_the_config_section() -> None:
+    """``adaptive.imm`` is what run_imm uses: defaults and validation live in ImmConfig only."""
+    assert load_config("paper").adaptive.imm == ImmConfig()
+    cfg = cfg_with(
+        "adaptive.imm.p_stay=0.9", "adaptive.imm.switching=neighbours", "scenario.duration_s=5"
     )
-    prm = ImmParams.from_config(cfg)  # type: ignore[arg-type]
+    prm = cfg.adaptive.imm
     assert (prm.p_stay, prm.switching, prm.mix_every) == (0.9, "neighbours", 1)
+    assert "p_stay = 0.9, neighbours switching" in run_imm(cfg, simulate(cfg, 0, 1)).notes["imm"]
+    with pytest.raises(ConfigError, match=r"adaptive\.imm\.p_stay"):
+        cfg_with("adaptive.imm.p_stay=1.0")
+    with pytest.raises(ConfigError, match=r"adaptive\.imm\.mix_every"):
+        cfg_with("adaptive.imm.mix_every=0")
     with pytest.raises(ValueError, match="p_stay"):
-        ImmParams(p_stay=1.0)
-    with pytest.raises(ValueError, match="mix_every"):
-        ImmParams(mix_every=0)
+        ImmConfig(p_stay=1.0)
 
 
 def test_imm_output_contract_and_probabilities() -> None:
@@ -281,8 +284,8 @@ def test_imm_output_contract_and_probabilities() -> None:
 def test_imm_with_mixing_every_few_epochs_runs_and_differs() -> None:
     cfg = cfg_with("scenario.duration_s=120")
     data = simulate(cfg, 2, 1)
-    every = imm_filter(cfg, data, ImmParams(mix_every=1))
-    sparse = imm_filter(cfg, data, ImmParams(mix_every=7))
+    every = imm_filter(cfg, data, ImmConfig(mix_every=1))
+    sparse = imm_filter(cfg, data, ImmConfig(mix_every=7))
     validate_output(sparse, "imm", 1, data.n_epochs)
     assert np.isfinite(sparse.est).all()
     assert not np.array_equal(every.est, sparse.est)
@@ -370,21 +373,25 @@ def test_attitude_innovation_is_the_filters() -> None:
         np.testing.assert_allclose(nu, rec.innov[:, 0, 0:3], rtol=0, atol=1e-15)
 
 
-def test_fading_params_from_config() -> None:
-    assert FadingParams.from_config(load_config("paper")) == FadingParams()
-    cfg = SimpleNamespace(adaptive=SimpleNamespace(fading=SimpleNamespace(softening=2.5)))
-    prm = FadingParams.from_config(cfg)  # type: ignore[arg-type]
+def test_fading_settings_are_the_config_section() -> None:
+    """``adaptive.fading`` is what run_fading uses: defaults and validation in FadingConfig."""
+    assert load_config("paper").adaptive.fading == FadingConfig()
+    cfg = cfg_with("adaptive.fading.softening=2.5", "scenario.duration_s=5")
+    prm = cfg.adaptive.fading
     assert (prm.forgetting, prm.softening) == (0.95, 2.5)
+    assert "β = 2.5" in run_fading(cfg, simulate(cfg, 0, 1)).notes["fading"]
+    with pytest.raises(ConfigError, match=r"adaptive\.fading\.softening"):
+        cfg_with("adaptive.fading.softening=0.5")
+    with pytest.raises(ConfigError, match=r"adaptive\.fading\.lambda_max"):
+        cfg_with("adaptive.fading.lambda_max=0.9")
     with pytest.raises(ValueError, match="softening"):
-        FadingParams(softening=0.5)
-    with pytest.raises(ValueError, match="lambda_max"):
-        FadingParams(lambda_max=0.9)
+        FadingConfig(softening=0.5)
 
 
 def test_fading_that_never_fires_is_the_plain_filter() -> None:
     cfg = cfg_with("scenario.duration_s=300")
     data = simulate(cfg, 4, 2)
-    out = fading_filter(cfg, data, FadingParams(softening=1e9))
+    out = fading_filter(cfg, data, FadingConfig(softening=1e9))
     validate_output(out, "fading", 2, data.n_epochs)
     assert np.all(out.logs["lambda"] == 1.0)
     assert out.kappa is not None
@@ -398,7 +405,7 @@ def test_fading_fires_inflates_and_stays_bounded() -> None:
     is dominated by the ADS noise); the prior cap keeps the filter from diverging."""
     cfg = cfg_with("scenario.duration_s=400")
     data = simulate(cfg, 4, 2)
-    out = fading_filter(cfg, data, FadingParams(softening=1.0, lambda_max=1e3))
+    out = fading_filter(cfg, data, FadingConfig(softening=1.0, lambda_max=1e3))
     validate_output(out, "fading", 2, data.n_epochs)
     lam = out.logs["lambda"]
     assert 0.05 < np.mean(lam > 1.0) < 0.9
@@ -413,7 +420,7 @@ def test_fading_fires_inflates_and_stays_bounded() -> None:
 
 def test_fading_trial_does_not_depend_on_its_batch() -> None:
     cfg = cfg_with("scenario.duration_s=200")
-    prm = FadingParams(softening=1.5)  # so that it fires
+    prm = FadingConfig(softening=1.5)  # so that it fires
     three = fading_filter(cfg, simulate(cfg, 0, [0, 1, 2]), prm)
     alone = fading_filter(cfg, simulate(cfg, 0, [1]), prm)
     assert np.any(three.logs["lambda"] > 1.0)

@@ -2,24 +2,23 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from qkf.core import kalman, units
-from qkf.transfer_alignment.config import load_config
+from qkf.core.config import ConfigError
+from qkf.transfer_alignment.config import CovarianceMatchingConfig, VbakfConfig, load_config
 from qkf.transfer_alignment.methods import validate_output
 from qkf.transfer_alignment.methods.base import MethodOutput, new_filter
 from qkf.transfer_alignment.methods.covariance_matching import (
-    CovarianceMatchingSettings,
     floor_eigenvalues,
     run_covariance_matching,
     window_estimate,
 )
 from qkf.transfer_alignment.methods.vbakf import (
-    VbakfSettings,
     attitude_innovation,
     r_prior,
     run_vbakf,
@@ -267,21 +266,30 @@ def test_attitude_innovation_is_the_filters() -> None:
     )
 
 
-def test_vbakf_settings_from_config() -> None:
-    """The ``adaptive.vbakf`` section when the config has one, the defaults otherwise."""
-    section = SimpleNamespace(
+def test_vbakf_settings_are_the_config_section() -> None:
+    """``adaptive.vbakf`` is what run_vbakf uses: defaults and validation in VbakfConfig only."""
+    st = load_config("paper").adaptive.vbakf
+    assert st == VbakfConfig()
+    assert (st.iterations, st.tau, st.r_prior_dof) == (10, 3.0, 3.0)
+    assert st.forgetting == 1.0 - math.exp(-4.0)  # ρ = 1 − e⁻⁴, to the last bit
+    cfg = cfg_with(
+        "adaptive.vbakf.iterations=4",
+        "adaptive.vbakf.tau=2",
+        "adaptive.vbakf.forgetting=0.9",
+        "adaptive.vbakf.r_prior_dof=5",
+        "adaptive.vbakf.adapt_p=false",
+        "scenario.duration_s=5",
+    )
+    assert cfg.adaptive.vbakf == VbakfConfig(
         iterations=4, tau=2.0, forgetting=0.9, r_prior_dof=5.0, adapt_p=False, adapt_r=True
     )
-    st = VbakfSettings.from_config(SimpleNamespace(adaptive=SimpleNamespace(vbakf=section)))  # type: ignore[arg-type]
-    assert st == VbakfSettings(4, 2.0, 0.9, 5.0, adapt_p=False, adapt_r=True)
-    st = VbakfSettings.from_config(SimpleNamespace(adaptive=SimpleNamespace()))  # type: ignore[arg-type]
-    assert (st.iterations, st.tau, st.r_prior_dof) == (10, 3.0, 3.0)
-    assert st.forgetting == pytest.approx(1.0 - np.exp(-4.0))
-    assert isinstance(VbakfSettings.from_config(load_config("paper")), VbakfSettings)
+    assert "N = 4, τ = 2, ρ = 0.9;" in run_vbakf(cfg, simulate(cfg, 0, 1)).notes["vbakf"]
+    with pytest.raises(ConfigError, match=r"adaptive\.vbakf\.forgetting"):
+        cfg_with("adaptive.vbakf.forgetting=0")
+    with pytest.raises(ConfigError, match=r"adaptive\.vbakf\.iterations"):
+        cfg_with("adaptive.vbakf.iterations=0")
     with pytest.raises(ValueError, match="forgetting"):
-        VbakfSettings(forgetting=0.0)
-    with pytest.raises(ValueError, match="iterations"):
-        VbakfSettings(iterations=0)
+        VbakfConfig(forgetting=0.0)
 
 
 # ---- covariance matching ---------------------------------------------------------------------
@@ -320,16 +328,16 @@ def test_floor_eigenvalues() -> None:
     np.testing.assert_allclose(floor_eigenvalues(m[None], 0.1)[0], rot @ np.diag([0.1, 3]) @ rot.T)
 
 
-def test_covariance_matching_first_window_by_hand(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_covariance_matching_first_window_by_hand() -> None:
     """Rebuild the first adaptation from a plain κ = 1 filter over the first W epochs."""
     cfg = cfg_with(
         "scenario.duration_s=40",
         "scenario.ads.attitude_sigma_arcsec=8",
         "filter.attitude_sigma_arcsec=3",
+        "adaptive.covariance_matching.window=5",
+        "adaptive.covariance_matching.warmup_s=10",
     )
     data = simulate(cfg, 2, 3)
-    st = CovarianceMatchingSettings(window=5, warmup_s=10.0)
-    monkeypatch.setattr(CovarianceMatchingSettings, "from_config", classmethod(lambda c, _: st))
     out = run_covariance_matching(cfg, data)
     kf = new_filter(cfg, data)
     plain = kf.step_data(data, 0, 10)  # warm-up: nothing enters the window
@@ -358,20 +366,31 @@ def test_covariance_matching_first_window_by_hand(monkeypatch: pytest.MonkeyPatc
     assert np.all(sigma > 4.0 * units.ARCSEC)  # the 8″ noise is seen
 
 
-def test_covariance_matching_settings() -> None:
-    section = SimpleNamespace(window=12, warmup_s=0.0, adapt_r=False, r_floor=0.5)
-    cfg = SimpleNamespace(adaptive=SimpleNamespace(covariance_matching=section))
-    st = CovarianceMatchingSettings.from_config(cfg)  # type: ignore[arg-type]
-    assert st == CovarianceMatchingSettings(12, 0.0, adapt_r=False, r_floor=0.5)
-    st = CovarianceMatchingSettings.from_config(SimpleNamespace(adaptive=SimpleNamespace()))  # type: ignore[arg-type]
+def test_covariance_matching_settings_are_the_config_section() -> None:
+    """``adaptive.covariance_matching`` is what the method uses: defaults and validation in
+    CovarianceMatchingConfig only."""
+    st = load_config("paper").adaptive.covariance_matching
+    assert st == CovarianceMatchingConfig()
     assert (st.window, st.warmup_s, st.adapt_r, st.r_floor) == (30, 100.0, True, 0.1)
-    assert isinstance(
-        CovarianceMatchingSettings.from_config(load_config("paper")), CovarianceMatchingSettings
+    cfg = cfg_with(
+        "adaptive.covariance_matching.window=12",
+        "adaptive.covariance_matching.warmup_s=0",
+        "adaptive.covariance_matching.adapt_r=false",
+        "adaptive.covariance_matching.r_floor=0.5",
+        "scenario.duration_s=5",
     )
+    assert cfg.adaptive.covariance_matching == CovarianceMatchingConfig(
+        window=12, warmup_s=0.0, adapt_r=False, r_floor=0.5
+    )
+    out = run_covariance_matching(cfg, simulate(cfg, 0, 1))
+    assert out.notes["covariance-matching"] == "window W = 12 measurement epochs"
+    assert "sigma_a" not in out.logs  # adapt_r: false reached the method
+    with pytest.raises(ConfigError, match=r"adaptive\.covariance_matching\.window"):
+        cfg_with("adaptive.covariance_matching.window=0")
+    with pytest.raises(ConfigError, match=r"adaptive\.covariance_matching\.r_floor"):
+        cfg_with("adaptive.covariance_matching.r_floor=0")
     with pytest.raises(ValueError, match="window"):
-        CovarianceMatchingSettings(window=0)
-    with pytest.raises(ValueError, match="r_floor"):
-        CovarianceMatchingSettings(r_floor=0.0)
+        CovarianceMatchingConfig(window=0)
 
 
 # ---- the method contract -----------------------------------------------------------------------
@@ -431,8 +450,9 @@ def test_methods_run_on_every_preset(preset: str, method) -> None:  # type: igno
     assert np.isfinite(out.logs["sigma_a"]).all() and (out.logs["sigma_a"] > 0).all()
 
 
-def _vbakf_vs_kf_attitude(trials: int) -> tuple[float, float, float]:
-    """Paired settled attitude RMS ratio vbakf / kf, true ADS noise 10″, filter assumes 3″."""
+def _vbakf_vs_kf_attitude(trials: int, *sets: str) -> tuple[float, float, float]:
+    """Paired settled attitude RMS ratio vbakf / kf, true ADS noise 10″, filter assumes 3″;
+    ``sets``: further overrides (the method's settings)."""
     from qkf.transfer_alignment.benchmark import run_benchmark
     from qkf.transfer_alignment.methods import NamedMethod, resolve_method
 
@@ -442,6 +462,7 @@ def _vbakf_vs_kf_attitude(trials: int) -> tuple[float, float, float]:
             "scenario.ads.attitude_sigma_arcsec=10",
             "filter.attitude_sigma_arcsec=3",
             "scenario.duration_s=1200",  # settled window 400–1200 s
+            *sets,
         ],
     )
     methods = [resolve_method("kf"), NamedMethod("vbakf", run_vbakf)]
@@ -464,13 +485,9 @@ def test_vbakf_beats_kf_with_underestimated_attitude_noise() -> None:
 
 
 @pytest.mark.slow
-def test_vb_r_only_beats_kf_with_underestimated_attitude_noise(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_vb_r_only_beats_kf_with_underestimated_attitude_noise() -> None:
     """VB on R alone (``adapt_p: false``, the Särkkä–Nummenmaa filter) learns the 10″ noise and
     beats the KF that assumes 3″ (measured 0.854 [0.773, 0.936] here; 0.794 [0.753, 0.831] on
     30 trials of 3600 s)."""
-    st = VbakfSettings(adapt_p=False)
-    monkeypatch.setattr(VbakfSettings, "from_config", classmethod(lambda c, _: st))
-    ratio, lo, hi = _vbakf_vs_kf_attitude(24)
+    ratio, lo, hi = _vbakf_vs_kf_attitude(24, "adaptive.vbakf.adapt_p=false")
     assert hi < 1.0, f"vbakf / kf settled attitude RMS {ratio:.3f} [{lo:.3f}, {hi:.3f}]"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from qkf.transfer_alignment.methods import BUILTIN_METHODS, METHODS
 from qkf.transfer_alignment.methods.oracle import (
@@ -37,6 +38,7 @@ def test_schedule_by_hand() -> None:
     np.testing.assert_array_equal(kap[1], 1.0)
 
 
+@pytest.mark.slow  # runs the oracle's whole tuning grid twice over
 def test_oracle_is_the_best_of_its_grid_on_the_tuning_trials() -> None:
     cfg = cfg_with(
         "scenario.duration_s=1500",

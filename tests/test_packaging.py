@@ -28,28 +28,79 @@ def test_pyproject_lists_every_package() -> None:
     listed = set(
         tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
     )
-    assert _packages_in_tree() == listed - {"qkf.presets", "qkf.presets.studies"}
+    presets = {p for p in listed if p == "qkf.presets" or p.startswith("qkf.presets.")}
+    assert _packages_in_tree() == listed - presets
+    # every preset folder of configs/ is listed (the wheel carries exactly the source presets)
+    folders = {p.parent for p in (ROOT / "configs").rglob("*.yaml")}
+    mapped = {".".join(("qkf", "presets", *f.relative_to(ROOT / "configs").parts)) for f in folders}
+    assert mapped == presets - {"qkf.presets"}
 
 
-def _imports(path: Path) -> set[str]:
+def _modules(path: Path) -> set[str]:
+    """Every module a file imports, anywhere in it (lazy imports inside functions included),
+    as dotted names (``from a.b import c`` gives ``a.b`` and ``a.b.c``)."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
-            names.update(a.name.split(".")[0] for a in node.names)
+            names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module.split(".")[0])
+            names.add(node.module)
+            names.update(f"{node.module}.{a.name}" for a in node.names)
     return names
 
 
+def _imports(path: Path) -> set[str]:
+    return {m.split(".")[0] for m in _modules(path)}
+
+
+PROBLEMS = ("transfer_alignment", "redundant_gyros", "sca_fusion", "alignment")
+TOP_CLI = ROOT / "qkf" / "cli.py"
+
+
 def test_the_library_never_imports_its_consumers() -> None:
-    """qkf/ imports neither envs nor agents (the command line, above all three, may)."""
+    """qkf/ imports neither envs nor agents, envs never imports agents; only the top-level
+    command line (qkf/cli.py) sits above all three (no other exemption)."""
     offenders = [
         str(p.relative_to(ROOT))
         for p in (ROOT / "qkf").rglob("*.py")
-        if p.name != "cli.py" and _imports(p) & {"envs", "agents"}
+        if p != TOP_CLI and _imports(p) & {"envs", "agents"}
     ]
     assert offenders == []
     assert not [p for p in (ROOT / "envs").rglob("*.py") if "agents" in _imports(p)]
+
+
+def test_no_problem_package_imports_another_and_the_core_none() -> None:
+    offenders = []
+    for folder in ("core", *PROBLEMS):
+        for path in (ROOT / "qkf" / folder).rglob("*.py"):
+            others = {
+                m
+                for m in _modules(path)
+                if m.startswith("qkf.")
+                and len(m.split(".")) > 1
+                and m.split(".")[1] in PROBLEMS
+                and m.split(".")[1] != folder
+            }
+            if others:
+                offenders.append(f"{path.relative_to(ROOT)}: {sorted(others)}")
+    assert offenders == []
+
+
+def test_only_the_top_level_command_line_mounts_the_apps() -> None:
+    """Each problem's cli.py (and agents/cli.py) exports a Typer app; only qkf/cli.py imports
+    them."""
+    apps = {f"qkf.{p}.cli" for p in PROBLEMS} | {"agents.cli"}
+    for name in apps:
+        path = ROOT / Path(*name.split(".")).with_suffix(".py")
+        assert "app = typer.Typer(" in path.read_text(), name
+    users = [
+        str(p.relative_to(ROOT))
+        for top in ("qkf", "envs", "agents")
+        for p in (ROOT / top).rglob("*.py")
+        if p != TOP_CLI and _modules(p) & apps
+    ]
+    assert users == []
+    assert apps <= _modules(TOP_CLI)
 
 
 def _run(code: str, cwd: Path, env: dict[str, str] | None = None) -> str:

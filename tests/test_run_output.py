@@ -145,7 +145,7 @@ def test_matching_option_is_checked_itself(tmp_path: Path) -> None:
 
 def _study(tmp_path: Path, body: str) -> Path:
     path = tmp_path / "s.yaml"
-    base = Path(__file__).resolve().parents[1] / "configs" / "paper.yaml"
+    base = Path(__file__).resolve().parents[1] / "configs" / "transfer_alignment" / "paper.yaml"
     path.write_text(f"name: s\nbase: {base}\ntrials: 2\n" + body)
     return path
 

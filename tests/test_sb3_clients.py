@@ -20,14 +20,14 @@ import yaml
 from gymnasium.utils.env_checker import check_env
 
 import envs
-from envs import ENV_ID_V2, GYRO_ENV_ID, TA_ENV_OBSERVATIONS
-from envs.transfer_alignment import FRAME_HEIGHT_PX, FRAME_WIDTH_PX, RENDER_FPS
+from envs import ENV_ID_V2, ENVIRONMENTS, GYRO_ENV_ID
+from envs.common.render import FRAME_HEIGHT_PX, FRAME_WIDTH_PX, RENDER_FPS
 
 ROOT = Path(__file__).resolve().parents[1]
 ZOO_HYPERPARAMS = ROOT / "agents" / "rl_zoo3" / "ppo.yml"
 SHORT = ["scenario.duration_s=200"]  # 20 decision periods of 10 s per episode
 GYRO_SHORT = ["scenario.duration_s=90"]  # fault at 60 s: 3 calibrated periods of 10 s
-ALL_IDS = [*TA_ENV_OBSERVATIONS, GYRO_ENV_ID]
+ALL_IDS = ENVIRONMENTS.names()  # every registered environment
 # tiny PPO: two 32-step rollouts of 2 envs cover learn(300) in 5 updates
 PPO_SMALL = {"n_steps": 32, "batch_size": 32, "n_epochs": 1, "device": "cpu", "seed": 0}
 LEARN_STEPS = 300
@@ -118,7 +118,7 @@ def test_vector_env_renders_one_frame_per_sub_env() -> None:
         render_mode="rgb_array",
         overrides=SHORT,
     )
-    assert isinstance(vec.unwrapped, envs.TransferAlignmentVectorEnv)
+    assert isinstance(vec.unwrapped, envs.BatchedTransferAlignmentEnv)
     assert vec.metadata["render_modes"] == ["rgb_array"]
     vec.reset(seed=0)
     empty = vec.render()
@@ -139,6 +139,7 @@ def test_vector_env_renders_one_frame_per_sub_env() -> None:
 # Stable-Baselines3 and RL Zoo3
 
 
+@pytest.mark.slow  # trains PPO
 def test_make_vec_env_trains_ppo() -> None:
     """SB3's ``make_vec_env`` asks for ``render_mode="rgb_array"``; it used to fail there."""
     from stable_baselines3 import PPO
@@ -153,6 +154,7 @@ def test_make_vec_env_trains_ppo() -> None:
     vec.close()
 
 
+@pytest.mark.slow  # trains PPO in spawned worker processes
 @pytest.mark.parametrize("start_method", ["spawn"])
 def test_subproc_vec_env_trains_ppo(start_method: str) -> None:
     """Two worker processes. Not ``fork``: once the parent has run a parallel numba kernel,
@@ -184,17 +186,20 @@ def test_zoo_hyperparameters_mirror_the_training_presets() -> None:
     """Every registered environment has an entry, and the v2 entry is the preset it names."""
     zoo = yaml.safe_load(ZOO_HYPERPARAMS.read_text())
     assert set(zoo) == set(ALL_IDS)
-    preset = yaml.safe_load((ROOT / "configs" / "train_ppo_snap_random_v2.yaml").read_text())
+    preset = yaml.safe_load(
+        (ROOT / "configs" / "training" / "train_ppo_snap_random_v2.yaml").read_text()
+    )
     v2 = zoo[ENV_ID_V2]
     assert {k: v2[k] for k in preset["hyperparams"]} == preset["hyperparams"]
     assert v2["n_envs"] == preset["n_envs"] and v2["n_timesteps"] == preset["total_steps"]
     for key in ("scenario", "action_type", "reward", "period_s"):
         assert v2["env_kwargs"][key] == preset[key]
     assert v2["vec_env_wrapper"] == [
-        {"agents.training.ScaledReward": {"scale": preset["reward_scale"]}}
+        {"agents.common.vec_env.ScaledReward": {"scale": preset["reward_scale"]}}
     ]
 
 
+@pytest.mark.slow  # trains PPO through RL Zoo3
 def test_rl_zoo3_trains_ppo(tmp_path: Path) -> None:
     """``python -m rl_zoo3.train`` as a user runs it, offline, in a folder of its own."""
     cmd = [

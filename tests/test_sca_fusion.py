@@ -23,15 +23,15 @@ from qkf.sca_fusion.differentiation import (
     quat_mul,
     sign_continuous,
 )
-from qkf.sca_fusion.report import compare_with_truth
-from qkf.sca_fusion.simulate import ARCSEC, simulate, truth_derivatives
-from qkf.sca_fusion.solve.fusion import (
+from qkf.sca_fusion.fusion import (
     ArcSolution,
     FusionRun,
     arcs_from_series,
     fuse_arc,
     run_fusion,
 )
+from qkf.sca_fusion.report import compare_with_truth
+from qkf.sca_fusion.scenario import ARCSEC, simulate, truth_derivatives
 
 
 def rotation_error(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -44,6 +44,7 @@ def _trial_values(run: Path) -> dict[str, np.ndarray]:
     return {m: np.array(v) for m, v in per.items()}
 
 
+@pytest.mark.slow  # the module's 12-trial benchmark (fixture run)
 def test_summary_follows_from_trials_exactly(run: Path) -> None:
     values = _trial_values(run)
     for r in _rows(run / "summary.csv"):
@@ -54,6 +55,7 @@ def test_summary_follows_from_trials_exactly(run: Path) -> None:
             assert float(r[f"{col}_lo"]) <= float(r[col]) <= float(r[f"{col}_hi"])
 
 
+@pytest.mark.slow  # the module's 12-trial benchmark (fixture run)
 def test_paired_interval_recomputed_independently(run: Path) -> None:
     """An index-based paired bootstrap written here, with other resamples, agrees with
     paired.csv to within the Monte Carlo error of 4000 resamples."""
@@ -77,6 +79,7 @@ def test_paired_interval_recomputed_independently(run: Path) -> None:
             assert float(row["hi"]) == pytest.approx(hi, abs=0.1 * width + 1e-12)
 
 
+@pytest.mark.slow  # the module's 12-trial benchmark (fixture run)
 def test_significance_marks_match_paired_csv(run: Path) -> None:
     text = (run / "summary.md").read_text()
     paired = _rows(run / "paired.csv")

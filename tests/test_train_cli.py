@@ -21,11 +21,11 @@ from agents.policy import Policy
 from agents.tabular import TabularQAgent
 from agents.training import plan_training, rounded_total_steps
 from qkf.cli import app
-from tests.conftest import CONFIGS, ROOT
+from tests.conftest import CONFIGS, ROOT, TRAINING
 
 runner = CliRunner()
-TABULAR = str(CONFIGS / "train_tabular.yaml")
-PPO = str(CONFIGS / "train_ppo.yaml")
+TABULAR = str(TRAINING / "train_tabular.yaml")
+PPO = str(TRAINING / "train_ppo.yaml")
 TINY = ["--set", "n_envs=4", "--set", "overrides=[scenario.duration_s=100]"]
 TAB = [*TINY, "--set", "eval={episodes: 2, seed: 100000, every_steps: 40}"]
 PPO_TINY = [
@@ -241,7 +241,7 @@ def test_total_steps_is_rounded_to_whole_rollouts_reported_and_trained(tmp_path:
 
 def test_rounding_uses_the_algorithms_defaults() -> None:
     def rounded(name: str, *sets: str) -> tuple[int, str | None]:
-        cfg = load_train_config(CONFIGS / f"{name}.yaml", list(sets))
+        cfg = load_train_config(TRAINING / f"{name}.yaml", list(sets))
         total, rollout = rounded_total_steps(cfg)
         return total, rollout.describe() if rollout else None
 
@@ -258,7 +258,7 @@ def test_rounding_uses_the_algorithms_defaults() -> None:
 
 
 def test_planning_writes_nothing(tmp_path: Path) -> None:
-    cfg = load_train_config(CONFIGS / "train_ppo.yaml", ["total_steps=8000"])
+    cfg = load_train_config(TRAINING / "train_ppo.yaml", ["total_steps=8000"])
     plan = plan_training(cfg, tmp_path / "run")
     assert plan.cfg.total_steps == 32768 and plan.checkpoint is None and not plan.discard
     assert not (tmp_path / "run").exists()

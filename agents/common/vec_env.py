@@ -1,91 +1,66 @@
-"""Stable-Baselines3 ``VecEnv`` over the batched transfer-alignment episodes.
+"""The vectorised environments of training, as Stable-Baselines3 ``VecEnv`` objects.
 
-SB3 expects same-step autoreset: when an episode ends, ``step_wait`` returns the first
-observation of the next episode and puts the last one in ``info["terminal_observation"]``
-(with ``info["TimeLimit.truncated"]`` for the time limit). Sub-environment ``i`` seeded with
-``s`` draws the same episodes as ``TransferAlignmentEnv`` reset with seed ``s + i``.
+:func:`make_vec_env` builds the environment of a training config from the environment
+registry (:data:`envs.ENVIRONMENTS`): the environment's own batched SB3 adapter where it has one
+(all episodes in one batched filter), else SB3's ``DummyVecEnv`` over ``gym.make``. Nothing
+here knows an environment by name. :class:`ScaledReward` multiplies the reward the learner sees
+(``reward_scale``); RL Zoo3 uses it too (``agents/rl_zoo3/ppo.yml``).
+
+Seeding: sub-environment ``i`` of ``make_vec_env(cfg, n, seed)`` draws its episodes as the
+single environment reset with seed ``seed + i`` (docs/environment.md, "Seeding").
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from gymnasium.utils import seeding
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor
 
-from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
-from qkf.transfer_alignment.config import Config
+from envs import ENVIRONMENTS
+from qkf.core.registry import load_object
+
+if TYPE_CHECKING:
+    from agents.config import TrainConfig
 
 
-class TransferAlignmentVecEnv(VecEnv):
-    """N episodes stepped at once through one batched filter, for SB3 algorithms."""
+def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
+    """``n_envs`` episodes of the config's environment, seeded ``seed + i``."""
+    spec = ENVIRONMENTS[cfg.env]
+    kwargs: dict[str, Any] = {
+        "scenario": cfg.scenario,
+        "action_type": cfg.action_type,
+        "reward": cfg.reward,
+        "overrides": list(cfg.overrides),
+        "period_s": cfg.period_s,
+    }
+    env: VecEnv
+    if spec.sb3_vec_env is not None:  # one batched filter for all episodes
+        env = load_object(spec.sb3_vec_env)(n_envs, **kwargs, **spec.kwargs)
+    else:  # one environment per episode; gym.make adds the id's own arguments
+        import gymnasium as gym
 
-    def __init__(
-        self,
-        num_envs: int,
-        scenario: str | Path | Config = "paper",
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str = "likelihood",
-        overrides: list[str] | None = None,
-        period_s: float = DEFAULT_PERIOD_S,
-        observation: str = "v0",
-    ) -> None:
-        self._driver = EpisodeDriver(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation
-        )
-        self.cfg = self._driver.cfg
-        self.actions = self._driver.actions
-        self.render_mode = None
-        super().__init__(num_envs, self._driver.observation_space, self.actions.space)
-        self._actions: np.ndarray | None = None
+        env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
+    env.seed(seed)
+    return env
 
-    def reset(self) -> np.ndarray:
-        for i, s in enumerate(self._seeds):
-            if s is not None:
-                self._driver.rngs[i] = seeding.np_random(s)[0]
-        self._reset_seeds()
-        return np.stack([self._driver.reset_env(i) for i in range(self.num_envs)])
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
+def monitored(env: VecEnv) -> VecMonitor:
+    """``env`` with SB3's episode statistics (returns, lengths) for TensorBoard."""
+    return VecMonitor(env)
 
-    def step_wait(self) -> VecEnvStepReturn:
-        if self._actions is None:
-            raise RuntimeError("step_async must come before step_wait")
-        acts = self._actions.reshape(self.num_envs, -1)
-        out = self._driver.step(acts if self.actions.action_type == "continuous" else acts[:, 0])
-        obs = out.obs.copy()
-        dones = out.terminated | out.truncated
-        infos: list[dict[str, Any]] = []
-        for i in range(self.num_envs):
-            info: dict[str, Any] = {"kappa": out.kappa[i], "errors": out.errors[i]}
-            if dones[i]:
-                info["terminal_observation"] = out.obs[i]
-                info["TimeLimit.truncated"] = bool(out.truncated[i])
-                info["diverged"] = bool(out.terminated[i])
-                obs[i] = self._driver.reset_env(i)
-            infos.append(info)
-        return obs, out.reward.astype(np.float32), dones, infos
 
-    def close(self) -> None:
-        return None
+class ScaledReward(VecEnvWrapper):
+    """Rewards times a constant for the learner (``reward_scale``); the monitor beneath and the
+    evaluations see the reward as defined. A fixed factor keeps training deterministic and
+    resumable, unlike running reward normalisation."""
 
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+    def __init__(self, venv: VecEnv, scale: float) -> None:
+        super().__init__(venv)
+        self.scale = scale
 
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        setattr(self, attr_name, value)
+    def reset(self) -> Any:
+        return self.venv.reset()
 
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **kwargs: Any
-    ) -> list[Any]:
-        raise NotImplementedError("the sub-environments are rows of one batch, not objects")
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None] * self.num_envs
+    def step_wait(self) -> Any:
+        obs, reward, done, infos = self.venv.step_wait()
+        return obs, reward * self.scale, done, infos

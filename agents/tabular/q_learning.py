@@ -112,6 +112,18 @@ class TabularQAgent:
         random = self.rng.integers(self.n_actions, size=np.shape(greedy))
         return np.where(explore, random, greedy)
 
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """Stable-Baselines3's ``predict``: ``(actions, state)``, the agent being memoryless.
+        What SB3's tools (``evaluate_policy``) and :class:`agents.policy.Policy` call, alike for
+        every agent."""
+        return self.act(observation, deterministic=deterministic), None
+
     def update(
         self,
         obs: np.ndarray,
@@ -212,10 +224,10 @@ def train_tabular(
     on_episode: Any = None,
     on_step: Callable[[list[float]], None] | None = None,
 ) -> list[float]:
-    """Train on a ``TransferAlignmentVecEnv`` until ``episodes`` episodes have ended; returns
-    the return of each finished episode. ``on_episode(n_done)`` is called as they finish;
-    ``on_step(returns)`` after every step of the environments, with the returns of the episodes
-    that ended at that step (often none)."""
+    """Train on an SB3 ``VecEnv`` (``agents.common.vec_env.make_vec_env``) until ``episodes``
+    episodes have ended; returns the return of each finished episode. ``on_episode(n_done)`` is
+    called as they finish; ``on_step(returns)`` after every step of the environments, with the
+    returns of the episodes that ended at that step (often none)."""
     obs = env.reset()
     returns: list[float] = []
     running = np.zeros(env.num_envs)

@@ -11,15 +11,15 @@ import numpy as np
 
 from agents.zoo.entry import ZooEntry
 from agents.zoo.summary import read_summary
-from envs import TA_ENV_OBSERVATIONS
-from envs.rewards import REWARDS
+from envs import ENVIRONMENTS
 from qkf.core.io import atomic_write_text
 
 
 def _training_lines(entry: ZooEntry) -> list[str]:
     cfg = entry.train_cfg
-    reward = REWARDS[cfg.reward] if cfg.reward in REWARDS else None
-    obs = TA_ENV_OBSERVATIONS.get(cfg.env, "")
+    env = ENVIRONMENTS[cfg.env]
+    reward = env.rewards[cfg.reward] if cfg.reward in env.rewards else None
+    obs = env.observation or ""
     lines = [
         f"# {entry.name}",
         "",

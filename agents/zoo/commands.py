@@ -21,6 +21,7 @@ from pathlib import Path
 
 from agents.config import load_train_config
 from agents.training import plan_training, run_training
+from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
 from agents.zoo.entry import ZOO_DIR, JudgeCase, ZooEntry
 from agents.zoo.summary import judge_summary, write_summary
@@ -56,7 +57,7 @@ def train_entry(
         _copy(model, dst / model.name)
         for name in SEED_FILES:
             _copy(run_dir / name, dst / name)
-        evaluations = run_dir / "eval" / "evaluations.npz"
+        evaluations = run_dir / EVALUATIONS
         if evaluations.is_file():
             _copy(evaluations, dst / "evaluations.npz")
     chosen = entry.selected_seed()

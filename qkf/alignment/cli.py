@@ -14,7 +14,10 @@ import typer
 
 from qkf.core.cli_support import OverwriteOption, SetOption, fail, out, out_dir
 
+app = typer.Typer(add_completion=False, help="Alignment calibration of vector sensors.")
 
+
+@app.command("align")
 def align_cmd(
     config: Annotated[
         str,
@@ -49,7 +52,7 @@ def align_cmd(
     from qkf.alignment.config import load_config
     from qkf.alignment.data import DataError, read_data
     from qkf.alignment.report import write_outputs
-    from qkf.alignment.simulate import simulate
+    from qkf.alignment.scenario import simulate
     from qkf.alignment.solve import SolveError, solve
     from qkf.core.config import ConfigError
     from qkf.core.io import OutputError

@@ -17,7 +17,6 @@ from qkf.core.config import (
     NonNegativeFloat,
     PositiveFloat,
     StrictModel,
-    load_model,
 )
 
 Vector3 = tuple[float, float, float]
@@ -138,17 +137,16 @@ class AlignmentConfig(StrictModel):
         return sensor.prior_deg if sensor.prior_deg is not None else self.prior_deg
 
 
+PRESETS = "alignment"
+"""The problem's preset folder (``configs/alignment/``)."""
+
+
 def load_config(
     path: str | Path | None = None, overrides: list[str] | None = None
 ) -> AlignmentConfig:
     """Read and validate an alignment config (a path or a preset name such as
     ``alignment_three_sensors``) and apply ``--set`` overrides. Raises :class:`ConfigError`."""
-    if path is None:
-        return load_model(AlignmentConfig, None, overrides)
-    resolved = presets.resolve(path)
-    if not resolved.exists() and presets.is_preset_name(path):
-        raise ConfigError(f"{path}: no such config file or preset (try alignment_three_sensors)")
-    return load_model(AlignmentConfig, resolved, overrides)
+    return presets.load_preset(AlignmentConfig, path, PRESETS, overrides)
 
 
 __all__ = ["AlignmentConfig", "ConfigError", "Sensor", "load_config"]

@@ -11,6 +11,8 @@ and drops the trailing slash of ``newdir/``, and both must be refused, not reint
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -40,6 +42,18 @@ def fail(msg: str, code: int = 2) -> typer.Exit:
     # soft_wrap: a message must not be broken at the terminal width (file paths, fields)
     err.print(f"[bold red]error:[/] {escape(msg)}", highlight=False, soft_wrap=True)
     return typer.Exit(code)
+
+
+@contextmanager
+def refused(prefix: str = "") -> Iterator[None]:
+    """Turn a ``ConfigError`` raised in the block into exit 2 with its message (after
+    ``prefix``, e.g. the config file's name)."""
+    from qkf.core.config import ConfigError
+
+    try:
+        yield
+    except ConfigError as exc:
+        raise fail(f"{prefix}{exc}") from None
 
 
 def out_dir(

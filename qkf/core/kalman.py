@@ -17,8 +17,14 @@ then symmetrised.
 ``ℓ = −½ (νᵀ S⁻¹ ν + log det S)``. A non-positive pivot of ``S`` (or a non-finite
 input) leaves ``x`` and ``P`` untouched and reports ``ok = False``.
 
-The single-problem routines (``predict_one``, ``update_one``) are what the transfer-alignment
-kernel calls for every trial; ``predict`` and ``update`` wrap them for a batch.
+The single-problem routines (``predict_one``, ``update_one``) work on one trial; ``predict``
+and ``update`` wrap them for a batch. The transfer-alignment kernel
+(:mod:`qkf.transfer_alignment.kernel`) calls ``update_one`` (with ``make_workspace``) and the
+Cholesky helpers (``cholesky_inplace``, ``forward_solve``) for every trial, but not
+``predict_one``: its propagation exploits the structure of ``Φ`` (only the attitude rows differ
+from the identity's) and adds the correlated-noise terms, so it has its own. The batch
+least-squares method (:mod:`qkf.transfer_alignment.methods.batch`) uses the Cholesky helpers
+and ``symmetrize_inplace``.
 """
 
 from __future__ import annotations

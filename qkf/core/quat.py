@@ -1,7 +1,29 @@
-"""Unit-quaternion algebra for compiled code (scalar-last ``[x, y, z, w]``, as scipy stores them).
+r"""Compiled SO(3) and quaternion algebra: the numba twin of :mod:`qkf.core.so3`.
 
-``quat_mul(p, q)`` is the Hamilton product with ``R(p ⊗ q) = R(p) R(q)``, so that
-``C ← C Exp(φ)`` reads ``q ← q ⊗ quat_from_rotvec(φ)``. Tests check every routine against
+One place for the rotation maths of compiled code (the transfer-alignment kernel, the batch
+estimator, the truth simulation). Quaternions are scalar-last ``[x, y, z, w]``, as scipy stores
+them; ``quat_mul(p, q)`` is the Hamilton product with ``R(p ⊗ q) = R(p) R(q)``, so that
+``C ← C Exp(φ)`` reads ``q ← q ⊗ Exp(φ)``. Rotation vectors are in rad.
+
+=========================  ===================================================================
+compiled (this module)     numpy (:mod:`qkf.core.so3`)
+=========================  ===================================================================
+rodrigues_coefficients     rodrigues_coefficients
+skew_and_square            skew (and ``skew @ skew``)
+exp_and_left_jacobian      exp_matrix, left_jacobian
+quat_mul                   quat_mul
+quat_from_rotvec           quat_exp
+rotvec_from_quat           quat_log
+relative_rotvec            quat_log(quat_mul(quat_conj(p), q))
+quat_mul_exp               quat_mul(q, quat_exp(φ)), normalised
+normalize                  —
+cumulative_rotation        —
+=========================  ===================================================================
+
+Compile options matter for the bits (:mod:`qkf.core.jit`): the quaternion routines are compiled
+without fast-math (strict IEEE arithmetic: the result is the same wherever they are inlined),
+the matrix routines with the kernels' :func:`~qkf.core.jit.kernel_jit` options.
+``tests/test_so3_core.py`` checks every routine against the numpy one and against
 ``scipy.spatial.transform.Rotation``.
 """
 
@@ -10,44 +32,164 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from qkf.core.jit import kernel_jit
+
+# ---- Rodrigues coefficients and matrices (kernel options: fast-math, no NRT) -------------------
+
+
+@kernel_jit()
+def rodrigues_coefficients(theta: float) -> tuple[float, float, float]:
+    """``a = sin θ/θ``, ``b = (1 − cos θ)/θ²``, ``c = (θ − sin θ)/θ³`` for θ ≥ 0 in rad.
+
+    ``Exp(φ) = I + a [φ×] + b [φ×]²`` and ``J_l(φ) = I + b [φ×] + c [φ×]²`` with ``θ = |φ|``.
+    Below 0.1 rad a Taylor series to θ⁸ (truncation < 1e-17 relative): the closed forms lose
+    digits to cancellation there. ``b`` in closed form as ``2 sin²(θ/2)/θ²``, which has no
+    cancellation.
+    """
+    t2 = theta * theta
+    if theta < 0.1:
+        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0 - t2 * t2 * t2 / 5040.0 + t2**4 / 362880.0
+        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0 - t2 * t2 * t2 / 40320.0 + t2**4 / 3628800.0
+        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0 - t2**3 / 362880.0 + t2**4 / 39916800.0
+    else:
+        s = np.sin(theta)
+        h = np.sin(0.5 * theta)
+        a = s / theta
+        b = 2.0 * h * h / t2  # (1 − cos θ)/θ² = 2 sin²(θ/2)/θ²
+        c = (theta - s) / (t2 * theta)
+    return a, b, c
+
+
+@kernel_jit()
+def skew_and_square(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
+    """``[w×]`` (3×3) into ``out_w`` and its square ``[w×]²`` (the matrix product) into
+    ``out_w2``; ``w`` (3,)."""
+    out_w[0, 0] = 0.0
+    out_w[0, 1] = -w[2]
+    out_w[0, 2] = w[1]
+    out_w[1, 0] = w[2]
+    out_w[1, 1] = 0.0
+    out_w[1, 2] = -w[0]
+    out_w[2, 0] = -w[1]
+    out_w[2, 1] = w[0]
+    out_w[2, 2] = 0.0
+    for i in range(3):
+        for j in range(3):
+            v = 0.0
+            for k in range(3):
+                v += out_w[i, k] * out_w[k, j]
+            out_w2[i, j] = v
+
+
+@kernel_jit()
+def exp_and_left_jacobian(phi: np.ndarray, rot: np.ndarray, jac: np.ndarray) -> None:
+    """``rot = Exp(φ) = I + a[φ×] + b[φ×]²`` and ``jac = J_l(φ) = I + b[φ×] + c[φ×]²`` (3×3)
+    of a rotation vector ``φ`` (3,) in rad, using ``[φ×]² = φφᵀ − θ² I``.
+
+    ``J_l(φ) = ∫₀¹ Exp(τφ) dτ``; the right Jacobian is ``J_r(φ) = J_l(−φ)``.
+    """
+    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    a, b, c = rodrigues_coefficients(theta)
+    t2 = theta * theta
+    for i in range(3):
+        for j in range(3):
+            pp = phi[i] * phi[j]
+            rot[i, j] = b * pp
+            jac[i, j] = c * pp
+        rot[i, i] += 1.0 - b * t2
+        jac[i, i] += 1.0 - c * t2
+    # skew part: [φ×] = [[0, −φz, φy], [φz, 0, −φx], [−φy, φx, 0]]
+    rot[0, 1] -= a * phi[2]
+    rot[0, 2] += a * phi[1]
+    rot[1, 0] += a * phi[2]
+    rot[1, 2] -= a * phi[0]
+    rot[2, 0] -= a * phi[1]
+    rot[2, 1] += a * phi[0]
+    jac[0, 1] -= b * phi[2]
+    jac[0, 2] += b * phi[1]
+    jac[1, 0] += b * phi[2]
+    jac[1, 2] -= b * phi[0]
+    jac[2, 0] -= b * phi[1]
+    jac[2, 1] += b * phi[0]
+
+
+# ---- quaternions (strict IEEE arithmetic) --------------------------------------------------------
+# The scalar forms below are the single definition of each formula; the array routines only load
+# and store around them, which keeps them free of scratch arrays (and usable in place).
+
+
+@nb.njit(cache=True)
+def _product(
+    px: float, py: float, pz: float, pw: float, qx: float, qy: float, qz: float, qw: float
+) -> tuple[float, float, float, float]:
+    """Hamilton product ``p ⊗ q`` of scalar-last quaternions given by their components."""
+    return (
+        pw * qx + qw * px + py * qz - pz * qy,
+        pw * qy + qw * py + pz * qx - px * qz,
+        pw * qz + qw * pz + px * qy - py * qx,
+        pw * qw - px * qx - py * qy - pz * qz,
+    )
+
+
+@nb.njit(cache=True)
+def _exp(phi0: float, phi1: float, phi2: float) -> tuple[float, float, float, float]:
+    """Quaternion of ``Exp(φ)``: ``[sin(θ/2) φ/θ, cos(θ/2)]``, θ = |φ| (series below 1e-4)."""
+    theta = np.sqrt(phi0**2 + phi1**2 + phi2**2)
+    if theta < 1e-4:
+        t2 = theta * theta
+        k = 0.5 - t2 / 48.0 + t2 * t2 / 3840.0  # sin(θ/2)/θ
+    else:
+        k = np.sin(0.5 * theta) / theta
+    return k * phi0, k * phi1, k * phi2, np.cos(0.5 * theta)
+
+
+@nb.njit(cache=True)
+def _log(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
+    """Rotation vector of a unit quaternion: ``2 atan2(|v|, w) v/|v|``, angle in [0, π]."""
+    if w < 0.0:  # q and −q are one rotation: take the one with w ≥ 0
+        x, y, z, w = -x, -y, -z, -w
+    n = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 / w if n < 1e-12 else 2.0 * np.arctan2(n, w) / n
+    return k * x, k * y, k * z
+
 
 @nb.njit(cache=True)
 def quat_mul(p: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
-    """Hamilton product ``p ⊗ q`` (scalar-last), so that R(p ⊗ q) = R(p) R(q)."""
-    px, py, pz, pw = p[0], p[1], p[2], p[3]
-    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
-    out[0] = pw * qx + qw * px + py * qz - pz * qy
-    out[1] = pw * qy + qw * py + pz * qx - px * qz
-    out[2] = pw * qz + qw * pz + px * qy - py * qx
-    out[3] = pw * qw - px * qx - py * qy - pz * qz
+    """Hamilton product ``p ⊗ q`` (scalar-last) into ``out``, so that R(p ⊗ q) = R(p) R(q)."""
+    out[0], out[1], out[2], out[3] = _product(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
 
 
 @nb.njit(cache=True)
 def quat_from_rotvec(phi: np.ndarray, out: np.ndarray) -> None:
-    """Quaternion of ``Exp(φ)`` (scalar-last)."""
-    theta = np.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    if theta < 1e-4:
-        t2 = theta * theta
-        k = 0.5 - t2 / 48.0 + t2 * t2 / 3840.0
-    else:
-        k = np.sin(0.5 * theta) / theta
-    out[0] = k * phi[0]
-    out[1] = k * phi[1]
-    out[2] = k * phi[2]
-    out[3] = np.cos(0.5 * theta)
+    """Quaternion of ``Exp(φ)`` (scalar-last) into ``out``; ``φ`` (3,) in rad."""
+    out[0], out[1], out[2], out[3] = _exp(phi[0], phi[1], phi[2])
 
 
 @nb.njit(cache=True)
 def rotvec_from_quat(q: np.ndarray, out: np.ndarray) -> None:
-    """``Log`` of a unit quaternion (scalar-last) as a rotation vector, angle in [0, π]."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    n = np.sqrt(x * x + y * y + z * z)
-    k = 2.0 / w if n < 1e-12 else 2.0 * np.arctan2(n, w) / n
-    out[0] = k * x
-    out[1] = k * y
-    out[2] = k * z
+    """``Log`` of a unit quaternion (scalar-last) as a rotation vector (rad) into ``out``, angle
+    in [0, π]."""
+    out[0], out[1], out[2] = _log(q[0], q[1], q[2], q[3])
+
+
+@nb.njit(cache=True)
+def relative_rotvec(q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> None:
+    """``Log(C_fromᵀ C_to)`` (rad) into ``out``: the rotation vector ``δθ`` with
+    ``C_to = C_from Exp(δθ)``, from the conjugate product ``q_from* ⊗ q_to``."""
+    x, y, z, w = _product(
+        -q_from[0], -q_from[1], -q_from[2], q_from[3], q_to[0], q_to[1], q_to[2], q_to[3]
+    )
+    out[0], out[1], out[2] = _log(x, y, z, w)
+
+
+@nb.njit(cache=True)
+def quat_mul_exp(q: np.ndarray, phi: np.ndarray, out: np.ndarray) -> None:
+    """``C_out = C Exp(φ)``: ``q ⊗ Exp(φ)`` normalised to unit length, into ``out`` (which may
+    be ``q``); ``φ`` (3,) in rad."""
+    ex, ey, ez, ew = _exp(phi[0], phi[1], phi[2])
+    x, y, z, w = _product(q[0], q[1], q[2], q[3], ex, ey, ez, ew)
+    out[0], out[1], out[2], out[3] = x, y, z, w
+    normalize(out)
 
 
 @nb.njit(cache=True)
@@ -64,9 +206,6 @@ def cumulative_rotation(q0: np.ndarray, rotvecs: np.ndarray) -> np.ndarray:
     n = rotvecs.shape[0]
     out = np.empty((n + 1, 4))
     out[0] = q0
-    inc = np.empty(4)
     for k in range(n):
-        quat_from_rotvec(rotvecs[k], inc)
-        quat_mul(out[k], inc, out[k + 1])
-        normalize(out[k + 1])
+        quat_mul_exp(out[k], rotvecs[k], out[k + 1])
     return out

@@ -1,8 +1,13 @@
-"""Rotation helpers on numpy arrays, batched over leading axes.
+"""Rotation algebra on numpy arrays, batched over leading axes: the one numpy rotation core.
 
-Quaternions and conversions go through ``scipy.spatial.transform.Rotation`` (scalar-last);
-what is here is the small-angle-safe algebra that scipy does not expose: the skew matrix and
-the coefficient functions of the Rodrigues formula and of the SO(3) Jacobian.
+The skew matrix, the coefficient functions of the Rodrigues formula and of the SO(3) Jacobian,
+``Exp`` as a matrix, the left Jacobian, and unit-quaternion algebra (product, conjugate, ``Exp``
+and ``Log``). Quaternions are scalar-last ``[x, y, z, w]``, as ``scipy.spatial.transform.Rotation``
+stores them, and ``quat_mul(p, q)`` is the Hamilton product with ``R(p ⊗ q) = R(p) R(q)``, so
+``C ← C Exp(φ)`` reads ``q ← quat_mul(q, quat_exp(φ))``. Rotation vectors are in rad.
+
+:mod:`qkf.core.quat` is the compiled (numba) twin of these routines, for compiled code;
+``tests/test_so3_core.py`` checks the two against each other and against scipy.
 """
 
 from __future__ import annotations
@@ -58,3 +63,49 @@ def left_jacobian(phi: np.ndarray) -> np.ndarray:
     w = skew(phi)
     eye = np.broadcast_to(np.eye(3), w.shape)
     return eye + b[..., None, None] * w + c[..., None, None] * (w @ w)
+
+
+def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product ``p ⊗ q`` of scalar-last quaternions (…, 4): ``R(p ⊗ q) = R(p) R(q)``."""
+    px, py, pz, pw = np.moveaxis(p, -1, 0)
+    qx, qy, qz, qw = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            pw * qx + qw * px + py * qz - pz * qy,
+            pw * qy + qw * py + pz * qx - px * qz,
+            pw * qz + qw * pz + px * qy - py * qx,
+            pw * qw - px * qx - py * qy - pz * qz,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate of scalar-last quaternions (…, 4): the inverse rotation of a unit quaternion."""
+    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def quat_exp(phi: np.ndarray) -> np.ndarray:
+    """Unit quaternions (…, 4), scalar-last, of ``Exp(φ)`` for rotation vectors (…, 3) in rad:
+    ``[sin(θ/2) φ/θ, cos(θ/2)]`` with θ = |φ|."""
+    theta = np.linalg.norm(phi, axis=-1)
+    t2 = theta * theta
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, theta)
+    # sin(θ/2)/θ: its Taylor series below 1e-4 rad, where the quotient would lose digits
+    k = np.where(small, 0.5 - t2 / 48.0 + t2 * t2 / 3840.0, np.sin(0.5 * safe) / safe)
+    return np.concatenate([k[..., None] * phi, np.cos(0.5 * theta)[..., None]], axis=-1)
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (…, 3) in rad, angle in [0, π], of unit quaternions (…, 4), scalar-last:
+    ``2 atan2(|v|, w) v/|v|`` after choosing the sign with ``w ≥ 0`` (q and −q are one
+    rotation)."""
+    q = np.where(q[..., 3:4] < 0.0, -q, q)
+    v, w = q[..., :3], q[..., 3]
+    n = np.linalg.norm(v, axis=-1)
+    small = n < 1e-12
+    k = np.where(
+        small, 2.0 / np.where(small, w, 1.0), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n)
+    )
+    return k[..., None] * v

@@ -131,10 +131,19 @@ def bench_cmd(
     seed: Annotated[int | None, typer.Option(help="Seed (bench.seed).")] = None,
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    backend: Annotated[
+        str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
+    ] = "local",
+    workers: Annotated[
+        int | None,
+        typer.Option(help="local backend: worker processes (config: bench.workers)."),
+    ] = None,
     overwrite: OverwriteOption = False,
 ) -> None:
     """Three-cross vs GLT over fault kinds and sizes (σ units) with bootstrap intervals, and the
-    UKF's accuracy and NEES over trials: bench.csv, ukf.csv, summary.md, bench.png, ukf.png."""
+    UKF's accuracy and NEES over trials: bench.csv, ukf.csv, summary.md, bench.png, ukf.png,
+    run.json. Every backend gives the same numbers."""
+    from qkf.core.montecarlo import BACKENDS
     from qkf.redundant_gyros.config import MAX_TRIALS
 
     cfg = _load(config, set_)
@@ -147,12 +156,17 @@ def bench_cmd(
         check_workload(cfg, trials)
     except ConfigError as exc:
         raise fail(f"{config}: {exc}") from None
+    # the same checks and messages as qkf bench, before the output folder is touched
+    if backend not in BACKENDS:
+        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
+    if workers is not None and workers < 1:
+        raise fail("--workers must be at least 1")
     folder = out_dir(out_path, "gyros-bench", overwrite)
     _report_separability(cfg)
-    from qkf.redundant_gyros.bench import run_bench
+    from qkf.redundant_gyros.benchmark import run_bench
     from qkf.redundant_gyros.report import write_bench
 
-    res = run_bench(cfg, trials, seed, progress=not quiet)
+    res = run_bench(cfg, trials, seed, progress=not quiet, backend=backend, workers=workers)
     write_bench(res, folder, list(sys.argv))
     out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
     out.print(f"wrote {folder}/")

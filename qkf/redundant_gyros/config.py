@@ -21,7 +21,6 @@ from qkf.core.config import (
     NonNegativeFloat,
     PositiveFloat,
     StrictModel,
-    load_model,
     workload_error,
 )
 
@@ -44,8 +43,8 @@ once, with a 4 × 4 covariance per trial-epoch). A bench chunk takes about 250 b
 trial-epoch with five gyros (measured; more with more gyros), so about 5 GB at the limit; the
 UKF, at about 300 µs per step, would run for about two hours. Twice :data:`MAX_EPOCHS`, so
 every accepted scenario runs with small enough chunks."""
-PRESET_PREFIX = "five_gyros"
-"""The presets of this problem share this prefix (listed in messages)."""
+PRESETS = "redundant_gyros"
+"""The problem's preset folder (``configs/redundant_gyros/``)."""
 
 
 class GyroSpec(StrictModel):
@@ -303,6 +302,9 @@ class BenchConfig(StrictModel):
     chunk_trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 64
     ukf_trials: Annotated[int, Field(ge=0, le=100_000)] = 10
     bootstrap: Bootstrap = Bootstrap()
+    # how the trials run (qkf.core.montecarlo); the numbers do not depend on either
+    workers: Annotated[int, Field(ge=1, le=1024)] = 1  # local backend: processes (1 = here)
+    ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
 
     @model_validator(mode="after")
     def _fault_inside(self) -> BenchConfig:
@@ -432,16 +434,12 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     """Read and validate a gyros config — a path or a preset name (``five_gyros``) — then apply
     ``--set`` overrides. Raises :class:`ConfigError` naming the file and the field; geometry
     problems (a model or the unit without three independent axes) are checked as well."""
-    if path is None:
-        cfg = load_model(GyrosConfig, None, overrides)
-        source = "<defaults>"
-    else:
-        resolved = presets.resolve(path)
-        if not resolved.exists() and presets.is_preset_name(path):
-            known = ", ".join(n for n in presets.preset_names() if n.startswith(PRESET_PREFIX))
-            raise ConfigError(f"{path}: no such config file or preset (gyro presets: {known})")
-        cfg = load_model(GyrosConfig, resolved, overrides)
-        source = str(resolved) + (" (with --set)" if overrides else "")
+    cfg = presets.load_preset(GyrosConfig, path, PRESETS, overrides)
+    source = (
+        "<defaults>"
+        if path is None
+        else str(presets.resolve(path, PRESETS)) + (" (with --set)" if overrides else "")
+    )
     from qkf.redundant_gyros.geometry import GeometryError, build_unit
 
     try:

@@ -15,7 +15,7 @@ import numpy as np
 from qkf.core.io import atomic_write_bytes, atomic_write_text, csv_text, staged_directory
 from qkf.core.manifest import manifest, write_manifest
 from qkf.core.plotting import figure_png, plt
-from qkf.redundant_gyros.bench import METHODS, BenchResult
+from qkf.redundant_gyros.benchmark import METHODS, BenchResult
 from qkf.redundant_gyros.metrics import (
     DETECTION_METRICS,
     convergence_step,
@@ -423,8 +423,15 @@ def bench_summary_md(res: BenchResult) -> str:
         ]
         for j, name in enumerate(COEFF_TITLES):
             lines.append(f"| {name} | {u.rms[-1, j]:.3g} | {u.sd[-1, j]:.3g} |")
-    lines += ["", f"Run time {res.runtime_s:.1f} s."]
+    lines += ["", f"Run time {res.runtime_s:.1f} s, {_where(res.backend, res.workers)}."]
     return "\n".join(lines) + "\n"
+
+
+def _where(backend: str, workers: int) -> str:
+    """Where the trials ran, in words (the numbers are the same on every backend)."""
+    if backend != "local":
+        return f"{backend} backend"
+    return "in one process" if workers <= 1 else f"{workers} worker processes"
 
 
 def write_bench(res: BenchResult, out_dir: str | Path, command: list[str] | None) -> None:
@@ -438,7 +445,13 @@ def write_bench(res: BenchResult, out_dir: str | Path, command: list[str] | None
     if res.ukf is not None:
         files["ukf.png"] = _ukf_figure(res)
     info = manifest(
-        "gyros-bench", res.cfg.model_dump(mode="json"), command, trials=res.trials, seed=res.seed
+        "gyros-bench",
+        res.cfg.model_dump(mode="json"),
+        command,
+        trials=res.trials,
+        seed=res.seed,
+        backend=res.backend,
+        workers=res.workers,
     )
     with staged_directory(out_dir) as stage:
         for name, data in files.items():

@@ -75,8 +75,8 @@ def fuse_cmd(
             raise fail(str(exc)) from None
 
     from qkf.core.banded import NotPositiveDefiniteError
+    from qkf.sca_fusion.fusion import run_fusion
     from qkf.sca_fusion.report import write_outputs
-    from qkf.sca_fusion.solve.fusion import run_fusion
 
     try:
         with _IterationBar(cfg.estimator.iteration_count, not quiet) as bar:
@@ -97,7 +97,7 @@ def fuse_cmd(
 
 class _IterationBar:
     """A rich progress bar over the iterations of each arc (on stderr); ``on_arc`` and
-    ``on_iteration`` are the callbacks of :func:`qkf.sca_fusion.solve.fusion.run_fusion`."""
+    ``on_iteration`` are the callbacks of :func:`qkf.sca_fusion.fusion.run_fusion`."""
 
     def __init__(self, iterations: int, enabled: bool) -> None:
         from rich.progress import (

@@ -19,7 +19,6 @@ from qkf.core.config import (
     PositiveFloat,
     StrictModel,
     TimeWindow,
-    load_model,
 )
 
 Vector3 = tuple[float, float, float]
@@ -144,15 +143,14 @@ class FusionConfig(StrictModel):
     simulation: Simulation = Simulation()
 
 
+PRESETS = "sca_fusion"
+"""The problem's preset folder (``configs/sca_fusion/``)."""
+
+
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> FusionConfig:
     """Read and validate a fusion config (a path or a preset name such as ``sca_acc_fusion``)
     and apply ``--set`` overrides. Raises :class:`ConfigError` naming the file and the field."""
-    if path is None:
-        return load_model(FusionConfig, None, overrides)
-    resolved = presets.resolve(path)
-    if not resolved.exists() and presets.is_preset_name(path):
-        raise ConfigError(f"{path}: no such config file or preset (try sca_acc_fusion)")
-    return load_model(FusionConfig, resolved, overrides)
+    return presets.load_preset(FusionConfig, path, PRESETS, overrides)
 
 
 __all__ = ["ConfigError", "Estimator", "FusionConfig", "Simulation", "load_config"]

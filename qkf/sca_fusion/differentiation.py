@@ -18,47 +18,11 @@ from math import factorial
 
 import numpy as np
 
-
-def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product ``p ⊗ q`` of scalar-last quaternions (…, 4): ``R(p ⊗ q) = R(p) R(q)``."""
-    px, py, pz, pw = np.moveaxis(p, -1, 0)
-    qx, qy, qz, qw = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qx + qw * px + py * qz - pz * qy,
-            pw * qy + qw * py + pz * qx - px * qz,
-            pw * qz + qw * pz + px * qy - py * qx,
-            pw * qw - px * qx - py * qy - pz * qz,
-        ],
-        axis=-1,
-    )
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    """Conjugate (inverse of a unit quaternion), scalar-last."""
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
-
-
-def quat_exp(phi: np.ndarray) -> np.ndarray:
-    """Quaternion of ``Exp(φ)`` for rotation vectors (…, 3) in rad, scalar-last."""
-    theta = np.linalg.norm(phi, axis=-1)
-    t2 = theta * theta
-    small = theta < 1e-4
-    safe = np.where(small, 1.0, theta)
-    k = np.where(small, 0.5 - t2 / 48.0 + t2 * t2 / 3840.0, np.sin(0.5 * safe) / safe)
-    return np.concatenate([k[..., None] * phi, np.cos(0.5 * theta)[..., None]], axis=-1)
-
-
-def quat_log(q: np.ndarray) -> np.ndarray:
-    """Rotation vector (…, 3), angle in [0, π], of unit quaternions (…, 4), scalar-last."""
-    q = np.where(q[..., 3:4] < 0.0, -q, q)
-    v, w = q[..., :3], q[..., 3]
-    n = np.linalg.norm(v, axis=-1)
-    small = n < 1e-12
-    k = np.where(
-        small, 2.0 / np.where(small, w, 1.0), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n)
-    )
-    return k[..., None] * v
+# The quaternion algebra is the core's; re-exported under these names for the arc modules.
+from qkf.core.so3 import quat_conj as quat_conj
+from qkf.core.so3 import quat_exp as quat_exp
+from qkf.core.so3 import quat_log as quat_log
+from qkf.core.so3 import quat_mul as quat_mul
 
 
 def sign_continuous(q: np.ndarray) -> np.ndarray:

@@ -16,8 +16,8 @@ from qkf.core.manifest import manifest, write_manifest
 from qkf.sca_fusion.config import FusionConfig
 from qkf.sca_fusion.design import AXES
 from qkf.sca_fusion.differentiation import quat_conj, quat_log, quat_mul
-from qkf.sca_fusion.simulate import ARCSEC
-from qkf.sca_fusion.solve.fusion import FusionRun
+from qkf.sca_fusion.fusion import FusionRun
+from qkf.sca_fusion.scenario import ARCSEC
 
 FUSED_COLUMNS = ("t_s", "q_x", "q_y", "q_z", "q_w", "sigma_x_rad", "sigma_y_rad", "sigma_z_rad")
 VC_COLUMNS = ("arc", "group", "axis", "sigma")

@@ -1,10 +1,13 @@
 """Innovation alarms and the age of a calibration change, as a flight computer can see them.
 
 Shared by the ``alarm-burst`` method (docs/methods.md, "Alarm burst") and the environment's
-observation v2 (docs/environment.md, "Observation v2"), so that both see the same change.
+observation v2 (docs/environment.md, "Observation v2"), so that both see the same change: both
+build their clock with :func:`change_clock` from the same configured settings,
+``adaptive.alarm_burst.nis_alarm`` and ``quiet_s`` (defaults and meaning:
+:class:`~qkf.transfer_alignment.config.AlarmBurstConfig`).
 
-A decision period *alarms* when its mean NIS per measurement row exceeds :data:`NIS_ALARM`. A
-*change* starts at an alarm that follows at least :data:`QUIET_S` without one; the alarms that
+A decision period *alarms* when its mean NIS per measurement row exceeds ``nis_alarm``. A
+*change* starts at an alarm that follows at least ``quiet_s`` without one; the alarms that
 follow it sooner belong to the same change. Its *age* is the time since it started.
 """
 
@@ -12,26 +15,33 @@ from __future__ import annotations
 
 import numpy as np
 
-NIS_ALARM = 4.0
-"""A period whose mean NIS per measurement row exceeds this is an alarm. Under a consistent
-filter the 10-epoch mean of χ²/m has mean 1 and standard deviation ≈ 0.2–0.3, so a chance
-alarm is a > 10σ event; a calibration jump seen during a rotation gives 10 … 100."""
+from qkf.transfer_alignment.config import AlarmBurstConfig, Config
 
-QUIET_S = 600.0
-"""An alarm after at least this long without one starts a new change. A calibration change
-raises an alarm at each rotation axis that makes part of it observable (60–150 s apart in the
-thermal scenarios): 600 s is longer than a three-axis rotation sequence, and shorter than the
-time between calibration events of the thermal scenarios."""
+_DEFAULTS = AlarmBurstConfig()
+
+NIS_ALARM: float = _DEFAULTS.nis_alarm
+"""The default of ``adaptive.alarm_burst.nis_alarm`` (read from the config section, its one
+home). Code that has a config uses the configured value: :func:`change_clock`."""
+
+QUIET_S: float = _DEFAULTS.quiet_s
+"""The default of ``adaptive.alarm_burst.quiet_s`` (read from the config section, its one
+home). Code that has a config uses the configured value: :func:`change_clock`."""
 
 
 class ChangeClock:
     """Per-row clocks of N runs: time since the last alarm and age of the current change (s;
-    ∞ before the first alarm)."""
+    ∞ before the first alarm). ``nis_alarm``: the threshold of :meth:`alarms`; ``quiet_s``: the
+    calm after which an alarm starts a new change."""
 
-    def __init__(self, n: int, quiet_s: float = QUIET_S) -> None:
+    def __init__(self, n: int, quiet_s: float = QUIET_S, nis_alarm: float = NIS_ALARM) -> None:
         self.quiet_s = quiet_s
+        self.nis_alarm = nis_alarm
         self.quiet = np.full(n, np.inf)
         self.age = np.full(n, np.inf)
+
+    def alarms(self, nis_per_row: np.ndarray) -> np.ndarray:
+        """Which of N periods alarmed, from their mean NIS per measurement row (N,)."""
+        return np.asarray(nis_per_row > self.nis_alarm)
 
     def reset(self, rows: np.ndarray) -> None:
         """Restart the clocks of ``rows`` (no alarm seen yet)."""
@@ -45,3 +55,11 @@ class ChangeClock:
         self.age = np.where(onset, 0.0, self.age + period_s)
         self.quiet = np.where(alarm, 0.0, self.quiet + period_s)
         return self.age
+
+
+def change_clock(cfg: Config, n: int) -> ChangeClock:
+    """The clock of N runs with the config's alarm settings (``adaptive.alarm_burst.nis_alarm``,
+    ``quiet_s``): what the ``alarm-burst`` method and the environment's observation v2 both use,
+    so that a changed setting changes both alike."""
+    settings = cfg.adaptive.alarm_burst
+    return ChangeClock(n, quiet_s=settings.quiet_s, nis_alarm=settings.nis_alarm)

@@ -35,6 +35,7 @@ from qkf.transfer_alignment.methods import (
     NamedMethod,
     prepare,
     resolve_method,
+    resolve_method_settings,
     validate_output,
 )
 from qkf.transfer_alignment.methods.base import decision_steps
@@ -231,6 +232,8 @@ def run_benchmark(
     (:class:`NamedMethod`), in any mix.
     ``backend``: ``local`` (in this process when ``workers`` is 1, else a process pool) or
     ``ray``; chunks are combined in chunk order, so every backend gives the same numbers.
+    The methods' settings sections are checked first (:func:`resolve_method_settings`:
+    ``ConfigError`` before any work), and the result's ``config`` is the resolved one.
     """
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
@@ -243,6 +246,9 @@ def run_benchmark(
         else [m if isinstance(m, NamedMethod) else resolve_method(m) for m in methods]
     )
     labels = [m.name for m in _unique(named)]
+    # the methods' settings sections, checked before any work; the resolved config (user
+    # sections with their defaults written in) is what every chunk and the manifest see
+    cfg = resolve_method_settings(cfg, named)
     specs = {m.name: m.spec for m in named}
     n = n_epochs(cfg.scenario)
     acc = {m: ErrorAccumulator(n) for m in labels}

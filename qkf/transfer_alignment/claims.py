@@ -1,7 +1,7 @@
 """Claims: statements of the form "A beats B", settled with paired bootstrap intervals.
 
-A claims study (``kind: claims``, e.g. ``configs/studies/paper_claims.yaml``) lists claims. Each
-claim is a ratio of RMS values of one metric::
+A claims study (``kind: claims``, e.g. ``configs/transfer_alignment/studies/paper_claims.yaml``)
+lists claims. Each claim is a ratio of RMS values of one metric::
 
     ratio = Π_numerator RMS(run) / Π_denominator RMS(run)
 
@@ -32,7 +32,7 @@ from qkf.core.io import atomic_write_bytes, csv_text, slug, staged_directory
 from qkf.core.manifest import manifest, write_manifest
 from qkf.core.stats import bootstrap_rms, percentile_interval, ratio_side, resample_counts
 from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
-from qkf.transfer_alignment.config import Config, load_config
+from qkf.transfer_alignment.config import STUDIES, Config, load_config
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 from qkf.transfer_alignment.report import write_bench
 
@@ -95,7 +95,7 @@ class Verdict:
 
 def load_claims(path: str | Path) -> tuple[ClaimsStudy, dict[tuple[str, tuple[str, ...]], Config]]:
     """The study and the config of every distinct (base, overrides) it uses."""
-    path = presets.resolve(path, "studies")
+    path = presets.resolve(path, STUDIES)
     study = validate(ClaimsStudy, read_yaml_mapping(path, "study"), str(path), "study")
     configs: dict[tuple[str, tuple[str, ...]], Config] = {}
     for i, claim in enumerate(study.claims):

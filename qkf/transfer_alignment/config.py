@@ -4,14 +4,22 @@ Values carry their unit in their name (``rate_deg_s``, ``attitude_sigma_arcsec``
 :mod:`qkf.transfer_alignment.params` converts them to SI. The schema is strict (unknown keys are
 errors); the machinery (YAML, ``--set`` overrides, messages naming file and field) is
 :mod:`qkf.core.config`. The meaning of every section is in docs/models.md and docs/methods.md.
+
+Methods are configured under ``adaptive``: the built-in methods' sections are fields of
+:class:`AdaptiveConfig`; a user's method declares a section of its own (docs/architecture.md,
+"Recipe: add a method"), which the config holds as written until the methods of a run are
+known and :func:`resolve_sections` validates it with the method's model.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
 
 from qkf.core import presets
 from qkf.core.actions import ActionSet
@@ -22,10 +30,8 @@ from qkf.core.config import (
     StrictModel,
     TimeWindow,
     apply_override,
-    load_model,
     workload_error,
 )
-from qkf.transfer_alignment.alarms import NIS_ALARM, QUIET_S
 
 
 class Maneuver(StrictModel):
@@ -283,35 +289,35 @@ class MmaeConfig(StrictModel):
 class ImmConfig(StrictModel):
     """Interacting multiple models over the κ action set (docs/methods.md)."""
 
-    p_stay: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.95  # per mixing interval
-    switching: Literal["uniform", "neighbours"] = "uniform"
-    mix_every: Annotated[int, Field(ge=1)] = 1  # epochs between mixings
+    p_stay: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.95  # Π_ii, per mixing interval
+    switching: Literal["uniform", "neighbours"] = "uniform"  # where the mass 1 − p_stay goes
+    mix_every: Annotated[int, Field(ge=1)] = 1  # epochs between mixings (the interval M)
 
 
 class FadingConfig(StrictModel):
     """Strong-tracking (fading-memory) filter (docs/methods.md)."""
 
-    forgetting: PositiveFloat = 0.95  # ρ of the innovation covariance estimate
-    softening: Annotated[float, Field(ge=1.0)] = 4.0  # β
-    lambda_max: Annotated[float, Field(ge=1.0)] = 10.0
+    forgetting: PositiveFloat = 0.95  # ρ of V_k = (ρ V_{k−1} + ν νᵀ)/(1 + ρ)
+    softening: Annotated[float, Field(ge=1.0)] = 4.0  # β in N_k = V_k − β R − H Q Hᵀ
+    lambda_max: Annotated[float, Field(ge=1.0)] = 10.0  # upper bound of one inflation λ
 
 
 class VbakfConfig(StrictModel):
     """Variational-Bayes AKF, Huang et al. 2018 (docs/methods.md)."""
 
-    iterations: Annotated[int, Field(ge=1, le=1000)] = 10
+    iterations: Annotated[int, Field(ge=1, le=1000)] = 10  # N, fixed-point iterations
     tau: Annotated[float, Field(ge=0.0)] = 3.0  # weight of the nominal prediction P̃⁻
     forgetting: Annotated[float, Field(gt=0.0, le=1.0)] = 0.9816843611112658  # ρ = 1 − e⁻⁴
     r_prior_dof: PositiveFloat = 3.0  # τ_R: û₀ = m + 1 + τ_R, Û₀ = τ_R R̃
-    adapt_p: bool = True
-    adapt_r: bool = True
+    adapt_p: bool = True  # infer P⁻ (false: P̂⁻ = P̃⁻, R only)
+    adapt_r: bool = True  # infer R_a (false: R̂ = R̃)
 
 
 class CovarianceMatchingConfig(StrictModel):
     """Innovation-based covariance matching, Mehra; Mohamed & Schwarz (docs/methods.md)."""
 
-    window: Annotated[int, Field(ge=1, le=100_000)] = 30  # measurement epochs
-    warmup_s: NonNegativeFloat = 100.0
+    window: Annotated[int, Field(ge=1, le=100_000)] = 30  # W, measurement epochs
+    warmup_s: NonNegativeFloat = 100.0  # innovations enter the window from this time on
     adapt_r: bool = True
     r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
 
@@ -335,14 +341,63 @@ class OracleConfig(StrictModel):
 
 class AlarmBurstConfig(StrictModel):
     """The alarm-burst method: the oracle's schedule started by an innovation alarm instead of
-    the true jump time (docs/methods.md, "Alarm burst")."""
+    the true jump time (docs/methods.md, "Alarm burst"). ``nis_alarm`` and ``quiet_s`` are also
+    what the environment's observation v2 sees (:func:`qkf.transfer_alignment.alarms.change_clock`
+    builds the clock of both from them).
+
+    ``nis_alarm``: a period whose mean NIS per measurement row exceeds it is an alarm. Under a
+    consistent filter the 10-epoch mean of χ²/m has mean 1 and standard deviation ≈ 0.2–0.3, so
+    a chance alarm at 4 is a > 10σ event; a calibration jump seen during a rotation gives
+    10 … 100.
+
+    ``quiet_s``: an alarm after at least this long without one starts a new change. A
+    calibration change raises an alarm at each rotation axis that makes part of it observable
+    (60–150 s apart in the thermal scenarios): 600 s is longer than a three-axis rotation
+    sequence, and shorter than the time between calibration events of the thermal scenarios.
+    """
 
     period_s: PositiveFloat = 10.0  # decision period: NIS averaged and κ held over it
-    nis_alarm: PositiveFloat = NIS_ALARM  # mean NIS per row above which a period alarms
-    quiet_s: NonNegativeFloat = QUIET_S  # calm that separates two changes
+    nis_alarm: PositiveFloat = 4.0  # mean NIS per row above which a period alarms
+    quiet_s: NonNegativeFloat = 600.0  # calm that separates two changes
+
+
+def _finite_setting(value: Any) -> Any:
+    """``value`` unchanged, unless a number anywhere inside it is NaN or infinite: a user's
+    section is held as written until its method's model validates it, and a config never holds
+    a non-finite number, validated or not (as :class:`StrictModel` refuses them)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise PydanticCustomError("finite_number", "Input should be a finite number")
+    if isinstance(value, dict):
+        for item in value.values():
+            _finite_setting(item)
+    elif isinstance(value, list | tuple):
+        for item in value:
+            _finite_setting(item)
+    return value
+
+
+RawSetting = Annotated[Any, AfterValidator(_finite_setting)]
+"""One value of a user's method section as written in YAML or ``--set`` (finite numbers only)."""
 
 
 class AdaptiveConfig(StrictModel):
+    """How κ is chosen: the action set, and one section per method that has settings.
+
+    The built-in methods' sections are the fields below. Any other key is the section of a
+    user's method (``adaptive.mine``): a method declares it with
+    :func:`~qkf.transfer_alignment.methods.base.uses_settings`, and reads it with
+    :func:`~qkf.transfer_alignment.methods.base.method_settings`. Because a config is loaded
+    before the methods of a run are known (``qkf bench`` resolves ``--methods`` after loading),
+    such a section is held as written, a mapping of finite values; once the methods are known,
+    :func:`resolve_sections` validates it with the method's own model, and refuses a section
+    that no method of the run reads (a typo must not pass silently).
+    """
+
+    # extra keys are user sections (held raw until resolve_sections); every value a mapping,
+    # so a scalar or a list in their place is refused on load, with the key named
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[str, dict[str, RawSetting]] = Field(init=False)
+
     actions: ActionSet = ActionSet()
     sage_husa: SageHusaConfig = SageHusaConfig()
     qkf: QkfConfig = QkfConfig()
@@ -391,6 +446,115 @@ def epochs_of(scenario: Scenario) -> int:
     return round(scenario.duration_s / scenario.dt_s)
 
 
+SettingsT = TypeVar("SettingsT", bound=StrictModel)
+
+
+def builtin_section(section: str) -> type[StrictModel] | None:
+    """The model of a built-in section of ``adaptive`` (a field of :class:`AdaptiveConfig`:
+    ``imm`` → :class:`ImmConfig`), or None for any other name (a user's section)."""
+    field = AdaptiveConfig.model_fields.get(section)
+    model = None if field is None else field.annotation
+    return model if isinstance(model, type) and issubclass(model, StrictModel) else None
+
+
+def read_section(
+    cfg: Config, section: str, model: type[SettingsT], source: str = "config"
+) -> SettingsT:
+    """``cfg.adaptive.<section>`` as ``model`` (what ``method_settings`` returns).
+
+    A built-in section is the config's own field (it must be of type ``model``). A user's
+    section is validated from the mapping the config holds, or from an empty one when the
+    config has none (the model's defaults; a required field is then reported missing). A
+    benchmark has resolved it already (:func:`resolve_sections`: checked, defaults written in),
+    so validating it again where the method runs gives the same settings, in any process.
+    Raises :class:`ConfigError` naming ``adaptive.<section>.<field>``.
+    """
+    builtin = builtin_section(section)
+    if builtin is not None:
+        value = getattr(cfg.adaptive, section)
+        if not isinstance(value, model):
+            raise ConfigError(
+                f"{source}: adaptive.{section}: the built-in section of type {builtin.__name__} "
+                f"cannot be read as {model.__name__}"
+            )
+        return value
+    raw = (cfg.adaptive.model_extra or {}).get(section, {})
+    try:
+        return model.model_validate(raw)
+    except ValidationError as exc:
+        lines = [f"{source}: {e}" for e in _section_errors(section, exc)]
+        raise ConfigError(_invalid(lines)) from None
+    except RecursionError:
+        raise ConfigError(f"{source}: adaptive.{section}: nested too deeply") from None
+
+
+def resolve_sections(
+    cfg: Config, claims: Mapping[str, tuple[type[StrictModel], str]], source: str = "config"
+) -> Config:
+    """``cfg`` with every user section of ``adaptive`` validated by the model that reads it.
+
+    ``claims``: section → (model, who reads it, e.g. ``method 'mine'``), for the methods of a
+    run. A claimed user section is validated (or its defaults taken, if the config has none)
+    and held in its resolved form, every field written out (``model_dump(mode="json")``), so
+    that a manifest records the settings the run used. A user section that nothing claims is
+    refused as an unknown key, and a claim on a built-in section must use its model. Every
+    problem is reported at once, one line each (``source: adaptive.mine.gain: message``), in a
+    :class:`ConfigError`. ``cfg`` itself is returned when no method reads a user section.
+    """
+    extra = cfg.adaptive.model_extra or {}
+    problems: list[str] = []
+    readers = sorted(s for s in claims if builtin_section(s) is None)
+    known = f"; user sections read by this run: {', '.join(readers)}" if readers else ""
+    for section in extra:
+        if section not in claims:
+            problems.append(
+                f"adaptive.{section}: unknown key (no method of this run reads it{known})"
+            )
+    resolved: dict[str, dict[str, Any]] = {}
+    for section, (model, who) in claims.items():
+        builtin = builtin_section(section)
+        if builtin is not None:
+            if model is not builtin:
+                problems.append(
+                    f"adaptive.{section}: {who} reads it as {model.__name__}, but it is the "
+                    f"built-in section of type {builtin.__name__}"
+                )
+            continue
+        try:
+            settings = model.model_validate(extra.get(section, {}))
+        except ValidationError as exc:
+            problems += _section_errors(section, exc)
+            continue
+        except RecursionError:
+            problems.append(f"adaptive.{section}: nested too deeply")
+            continue
+        resolved[section] = settings.model_dump(mode="json")
+    if problems:
+        raise ConfigError(_invalid([f"{source}: {p}" for p in problems]))
+    if not resolved:  # no user section (unclaimed ones were refused above): nothing to change
+        return cfg
+    # validated already, section by section: a copy with the resolved sections in place
+    adaptive = cfg.adaptive.model_copy(update=resolved)
+    return cfg.model_copy(update={"adaptive": adaptive})
+
+
+def _section_errors(section: str, exc: ValidationError) -> list[str]:
+    """``adaptive.<section>.<field>: message`` per problem, worded as
+    :func:`qkf.core.config.format_validation` words those of a whole config."""
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(["adaptive", section, *(str(x) for x in err["loc"])])
+        msg = (
+            "unknown key" if err["type"] == "extra_forbidden" else " ".join(str(err["msg"]).split())
+        )
+        lines.append(f"{loc}: {msg}")
+    return lines
+
+
+def _invalid(lines: list[str]) -> str:
+    return "invalid configuration\n  " + "\n  ".join(lines)
+
+
 def check_workload(cfg: Config, trials: int | None = None) -> None:
     """Refuse a benchmark too big to finish: ``trials × epochs`` above
     :data:`MAX_TRIAL_EPOCHS` or one chunk's ``trials × epochs`` above
@@ -431,16 +595,32 @@ def _check_total(cfg: Config, trials: int | None) -> tuple[int, str, int, str]:
     return n_trials, who, epochs, what
 
 
+PRESETS = "transfer_alignment"
+"""The problem's preset folder (``configs/transfer_alignment/``); its studies are in
+``studies/`` below it."""
+STUDIES = f"{PRESETS}/studies"
+
+
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
     """Read and validate a config — a path or a preset name (``thermal_snap``) — then apply
     ``--set`` style overrides. Raises :class:`ConfigError` naming the file and the field."""
-    if path is None:
-        return load_model(Config, None, overrides)
-    resolved = presets.resolve(path)
-    if not resolved.exists() and presets.is_preset_name(path):
-        known = ", ".join(n for n in presets.preset_names() if not n.startswith("train_"))
-        raise ConfigError(f"{path}: no such config file or preset (presets: {known})")
-    return load_model(Config, resolved, overrides)
+    return presets.load_preset(Config, path, PRESETS, overrides)
 
 
-__all__ = ["Config", "ConfigError", "apply_override", "check_workload", "load_config"]
+def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Config:
+    """:func:`load_config` for a use that runs no method (an environment, the CRLB): a user
+    section under ``adaptive`` is then read by nothing, so it is refused as an unknown key, as
+    any typo is (``ConfigError`` naming the file)."""
+    cfg = load_config(path, overrides)
+    source = str(presets.resolve(path, PRESETS)) + (" (with --set)" if overrides else "")
+    return resolve_sections(cfg, {}, source)
+
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "apply_override",
+    "check_workload",
+    "load_config",
+    "load_scenario",
+]

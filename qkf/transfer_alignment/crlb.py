@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.model import calibration_matrix, discretize, measurement_model
+from qkf.transfer_alignment.model import discretize, measurement_model, rate_matrix
 from qkf.transfer_alignment.params import TruthParams, prior_sigma
 from qkf.transfer_alignment.scenario import (
     calibration_jumps,
@@ -55,7 +55,7 @@ def crlb(cfg: Config, use_rate: bool | None = None) -> CrlbResult:
         use_rate = cfg.filter.matching == "attitude_rate"
     dt, n = tp.dt, tp.n_epochs
     w = true_rates(cfg.scenario)
-    a = np.linalg.inv(np.eye(3) + calibration_matrix(true_calibration_path(cfg)))
+    a = rate_matrix(true_calibration_path(cfg))  # A = (I + K(p))⁻¹ along the true path
     q_p = np.maximum(calibration_walk_sigma(cfg.scenario) ** 2, QP_FLOOR)
     phi, qd = discretize(w, a, dt, tp.sigma_v, tp.sigma_u, q_p, cfg.filter.quadrature_nodes)
     h, r = measurement_model(w, a, dt, tp.sigma_a, tp.sigma_r, tp.sigma_v, use_rate)

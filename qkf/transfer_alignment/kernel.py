@@ -3,12 +3,14 @@ r"""Compiled inner loop of the transfer-alignment filter (:mod:`qkf.transfer_ali
 One call of :func:`run_block` runs a block of epochs for every trial: trials in parallel
 (``prange``), epochs in sequence. Per epoch and trial (equations in ``docs/models.md``):
 
-1. ``A = (I + K(p̂))⁻¹``, ``ω̂ = A (ω̃ − b̂)`` (:func:`_rate`);
+1. ``A = (I + K(p̂))⁻¹``, ``ω̂ = A (ω̃ − b̂)``
+   (:func:`~qkf.transfer_alignment.model_compiled.rate_estimate`);
 2. with an ADS measurement, the Joseph-form update and the reset
    ``Ĉ ← Ĉ Exp(δθ)``, ``b̂ += Δb``, ``p̂ += Δp`` (:func:`_measurement_update_and_reset`);
 3. the records of the a-posteriori estimate (:func:`_record_posterior`);
 4. the propagation ``Ĉ ← Ĉ Exp(ω̂ Δt)`` (:func:`_propagate_attitude`) and
-   ``P̃ ← Φ̃ P̃ Φ̃ᵀ + Q̃d`` (:func:`_phi_top_rows`, :func:`_qd_quadrature`,
+   ``P̃ ← Φ̃ P̃ Φ̃ᵀ + Q̃d`` (:func:`~qkf.transfer_alignment.model_compiled.phi_top_rows`,
+   :func:`_qd_quadrature`,
    :func:`_propagate_covariance`), with the correlated-noise terms
    (:func:`_correlation_correction`).
 
@@ -36,53 +38,37 @@ lose no digits to the choice of units. Unchanged by the scaling: ``ν̃ᵀ S̃�
 recovered as ``P = D P̃ D``, ``δx = D x̃``, ``log det S = log det S̃ + 2 Σᵢ log eᵢ``,
 ``tr S_aa = e_a² tr S̃_aa``. Inputs, estimates and records are in SI.
 
-The math is that of :mod:`qkf.transfer_alignment.model` (numpy); tests check the two against each
-other. Quaternions are scalar-last, as scipy stores them.
+The model pieces (``A``, ``ω̂``, ``A Ω``, ``R``, ``Γ``, the rows of ``Φ``, the attitude residual)
+are those of :mod:`qkf.transfer_alignment.model_compiled`, the rotation algebra that of
+:mod:`qkf.core.quat`; both are compiled with the same options as this module
+(:mod:`qkf.core.jit`). The math is that of :mod:`qkf.transfer_alignment.model` (numpy); tests
+check the two against each other. Quaternions are scalar-last, as scipy stores them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, NamedTuple, TypeVar, cast
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
+from qkf.core.jit import FASTMATH, kernel_jit
 from qkf.core.kalman import (
     cholesky_inplace,
     forward_solve,
     make_workspace,
     update_one,
 )
-from qkf.core.quat import normalize as _normalize
-from qkf.core.quat import quat_from_rotvec, quat_mul, rotvec_from_quat
-
-# Reassociation lets LLVM vectorise the small reductions; NaN and Inf semantics are kept, so
-# the finiteness checks still work.
-_FASTMATH = {"reassoc", "contract", "arcp"}
-
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _epoch_jit(*, inline: bool = False) -> Callable[[_F], _F]:
-    """``nb.njit`` for the per-epoch code: cached, ``_FASTMATH`` and compiled without the NRT.
-
-    That code only reads and writes arrays allocated elsewhere (:func:`_run_trial`), so it needs
-    no reference counting; with the NRT, every array handed to a helper or taken from a named
-    tuple costs an atomic incref/decref pair, and at ~100 of them per epoch the split kernel ran
-    10-40 % slower than the monolithic one. ``inline``: inline into the caller at the numba-IR
-    level (the loops then see the caller's arrays; called out of line, the helpers were slower).
-    ``_nrt`` is a private numba option, hence the cast for the type checker.
-    """
-    options: dict[str, Any] = {"cache": True, "fastmath": _FASTMATH, "_nrt": False}
-    if inline:
-        options["inline"] = "always"
-    return cast("Callable[[_F], _F]", nb.njit(**options))
-
-
-# Column l of Ω(ω) has one non-zero, ω[_OM_COL[l]], in row _OM_ROW[l].
-_OM_ROW = np.array([0, 1, 2, 0, 0, 1, 1, 2, 2])
-_OM_COL = np.array([0, 1, 2, 1, 2, 2, 0, 0, 1])
+from qkf.core.quat import quat_mul_exp, skew_and_square
+from qkf.transfer_alignment.model_compiled import (
+    OM_COL,
+    OM_ROW,
+    a_omega,
+    attitude_residual,
+    attitude_transition,
+    phi_top_rows,
+    rate_estimate,
+)
 
 
 class FilterState(NamedTuple):
@@ -161,8 +147,6 @@ class _Scratch(NamedTuple):
     nu: np.ndarray  # (m,) ν̃
     s_keep: np.ndarray  # (m, m) S̃
     ws: tuple[np.ndarray, ...]  # update_one workspace: Kᵀ, chol(S̃), S̃⁻¹ ν̃, ...
-    qtmp: np.ndarray  # (4,)
-    qinc: np.ndarray  # (4,)
     vec: np.ndarray  # (3,)
     y3: np.ndarray  # (3,)
     s3: np.ndarray  # (3, 3)
@@ -185,94 +169,7 @@ class _Scratch(NamedTuple):
     sinv_rr: np.ndarray  # (3, 3)
 
 
-@_epoch_jit()
-def _rodrigues(theta: float) -> tuple[float, float, float]:
-    """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ (as qkf.core.so3.rodrigues_coefficients)."""
-    t2 = theta * theta
-    if theta < 0.1:
-        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0 - t2 * t2 * t2 / 5040.0 + t2**4 / 362880.0
-        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0 - t2 * t2 * t2 / 40320.0 + t2**4 / 3628800.0
-        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0 - t2**3 / 362880.0 + t2**4 / 39916800.0
-    else:
-        s = np.sin(theta)
-        h = np.sin(0.5 * theta)
-        a = s / theta
-        b = 2.0 * h * h / t2
-        c = (theta - s) / (t2 * theta)
-    return a, b, c
-
-
-@_epoch_jit()
-def _skew_sq(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> None:
-    out_w[0, 0] = 0.0
-    out_w[0, 1] = -w[2]
-    out_w[0, 2] = w[1]
-    out_w[1, 0] = w[2]
-    out_w[1, 1] = 0.0
-    out_w[1, 2] = -w[0]
-    out_w[2, 0] = -w[1]
-    out_w[2, 1] = w[0]
-    out_w[2, 2] = 0.0
-    for i in range(3):
-        for j in range(3):
-            v = 0.0
-            for k in range(3):
-                v += out_w[i, k] * out_w[k, j]
-            out_w2[i, j] = v
-
-
-@_epoch_jit()
-def _transition(
-    wx: np.ndarray, wx2: np.ndarray, rate: float, s: float, r: np.ndarray, g: np.ndarray
-) -> None:
-    """R = Exp(−ω̂ s), Γ = s · J(−ω̂ s) into ``r`` and ``g``.
-
-    ``wx`` = [−ω̂×] and ``wx2`` = [−ω̂×]² are computed once per step by the caller; ``rate`` =
-    |ω̂| in rad/s. With φ = −ω̂ s: [φ×] = s·wx and [φ×]² = s²·wx2.
-    """
-    a, b, c = _rodrigues(rate * s)
-    a1 = a * s
-    b2 = b * s * s
-    b1 = b * s
-    c2 = c * s * s
-    for i in range(3):
-        for j in range(3):
-            e = 1.0 if i == j else 0.0
-            r[i, j] = e + a1 * wx[i, j] + b2 * wx2[i, j]
-            g[i, j] = s * (e + b1 * wx[i, j] + c2 * wx2[i, j])
-
-
-@_epoch_jit()
-def _rate(gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray, a: np.ndarray, w: np.ndarray):  # type: ignore[no-untyped-def]
-    """A = (I + K(p̂))⁻¹ and ω̂ = A (ω̃ − b̂) into ``a`` and ``w``; False if singular."""
-    m00, m11, m22 = 1.0 + p_hat[0], 1.0 + p_hat[1], 1.0 + p_hat[2]
-    m01, m02, m12 = p_hat[3], p_hat[4], p_hat[5]
-    m10, m20, m21 = p_hat[6], p_hat[7], p_hat[8]
-    c00 = m11 * m22 - m12 * m21
-    c01 = m12 * m20 - m10 * m22
-    c02 = m10 * m21 - m11 * m20
-    det = m00 * c00 + m01 * c01 + m02 * c02
-    if not (abs(det) > 1e-12 and np.isfinite(det)):
-        return False
-    inv = 1.0 / det
-    a[0, 0] = c00 * inv
-    a[1, 0] = c01 * inv
-    a[2, 0] = c02 * inv
-    a[0, 1] = (m02 * m21 - m01 * m22) * inv
-    a[1, 1] = (m00 * m22 - m02 * m20) * inv
-    a[2, 1] = (m01 * m20 - m00 * m21) * inv
-    a[0, 2] = (m01 * m12 - m02 * m11) * inv
-    a[1, 2] = (m02 * m10 - m00 * m12) * inv
-    a[2, 2] = (m00 * m11 - m01 * m10) * inv
-    u0 = gyro[0] - b_hat[0]
-    u1 = gyro[1] - b_hat[1]
-    u2 = gyro[2] - b_hat[2]
-    for i in range(3):
-        w[i] = a[i, 0] * u0 + a[i, 1] * u1 + a[i, 2] * u2
-    return True
-
-
-@_epoch_jit()
+@kernel_jit()
 def _nodes_needed(theta: float, max_nodes: int) -> int:
     """Gauss–Legendre nodes for Q_d at rotation angle θ = |ω̂|Δt (rad) per step.
 
@@ -289,17 +186,7 @@ def _nodes_needed(theta: float, max_nodes: int) -> int:
     return min(n, max_nodes)
 
 
-@_epoch_jit()
-def _a_omega(a: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
-    """``A Ω(ω)`` (3×9) into ``out``."""
-    for l in range(9):
-        col = _OM_ROW[l]
-        v = w[_OM_COL[l]]
-        for i in range(3):
-            out[i, l] = a[i, col] * v
-
-
-@_epoch_jit()
+@kernel_jit()
 def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np.ndarray) -> float:
     """νᵀ S⁻¹ ν restricted to rows/cols lo:lo+3 of S (marginal NIS of one measurement block).
 
@@ -315,7 +202,7 @@ def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np
     return y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
 
 
-@_epoch_jit()
+@kernel_jit()
 def _correlation_correction(
     p: np.ndarray,
     q_hat: np.ndarray,
@@ -324,8 +211,6 @@ def _correlation_correction(
     phi_top: np.ndarray,
     w_corr: np.ndarray,
     sinv_rr: np.ndarray,
-    qinc: np.ndarray,
-    qtmp: np.ndarray,
     vec: np.ndarray,
     d: np.ndarray,
     v_tt: np.ndarray,
@@ -387,14 +272,10 @@ def _correlation_correction(
         for c in range(3):
             v += c_tr[i, c] * y[3 + c]
         vec[i] = v * d[i]
-    quat_from_rotvec(vec, qinc)
-    quat_mul(q_hat, qinc, qtmp)
-    _normalize(qtmp)
-    for i in range(4):
-        q_hat[i] = qtmp[i]
+    quat_mul_exp(q_hat, vec, q_hat)
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@kernel_jit(nrt=True)
 def _scale_factors(c: Constants) -> _Scales:
     """The constant factors between SI and the scaled units (module doc), no divisions later."""
     d = c.d
@@ -432,7 +313,7 @@ def _scale_factors(c: Constants) -> _Scales:
     )
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@kernel_jit(nrt=True)
 def _make_scratch(m: int) -> _Scratch:
     """Work arrays of one trial for ``m`` measurement rows."""
     return _Scratch(
@@ -445,8 +326,6 @@ def _make_scratch(m: int) -> _Scratch:
         np.empty(m),  # nu
         np.empty((m, m)),  # s_keep
         make_workspace(15, m),  # ws
-        np.empty(4),  # qtmp
-        np.empty(4),  # qinc
         np.empty(3),  # vec
         np.empty(3),  # y3
         np.empty((3, 3)),  # s3
@@ -470,7 +349,7 @@ def _make_scratch(m: int) -> _Scratch:
     )
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _record_diverged(rec: Records, bi: int, k: int) -> None:
     """NaN in every record of epoch ``k`` of a diverged trial."""
     for i in range(16):
@@ -490,7 +369,7 @@ def _record_diverged(rec: Records, bi: int, k: int) -> None:
                 rec.cov[bi, k, i, j] = np.nan
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _measurement_update_and_reset(
     q_hat: np.ndarray,  # (4,) in/out
     b_hat: np.ndarray,  # (3,) in/out
@@ -515,12 +394,7 @@ def _measurement_update_and_reset(
     a, w, h, r, nu = s.a, s.w, s.h, s.r, s.nu
     inv_ea = 1.0 / e_a
     # attitude rows: z_a = Log(Ĉᵀ C_ADS);  ν̃_a = z_a/e_a,  H̃_a = [D_θ/e_a, 0, 0],  R̃_a = I
-    s.qtmp[0] = -q_hat[0]
-    s.qtmp[1] = -q_hat[1]
-    s.qtmp[2] = -q_hat[2]
-    s.qtmp[3] = q_hat[3]
-    quat_mul(s.qtmp, ads_q, s.qinc)
-    rotvec_from_quat(s.qinc, s.vec)
+    attitude_residual(q_hat, ads_q, s.vec)
     for i in range(3):
         innov[i] = s.vec[i]
         nu[i] = s.vec[i] * inv_ea
@@ -529,7 +403,7 @@ def _measurement_update_and_reset(
     if use_rate:
         # rate rows: z_r = ω_ADS − ω̂;  ν̃_r = z_r/e_r,  H̃_r = [0, −A, −A Ω(ω̂)] D / e_r,
         # R̃_r = (σ_v²/Δt · A Aᵀ + σ_r² I) / e_r²
-        _a_omega(a, w, s.aom)
+        a_omega(a, w, s.aom)
         for i in range(3):
             zr = ads_rate[i] - w[i]
             innov[3 + i] = zr
@@ -568,20 +442,16 @@ def _measurement_update_and_reset(
     x = s.x
     for i in range(15):
         x[i] *= d[i]
-    quat_from_rotvec(x[0:3], s.qinc)
-    quat_mul(q_hat, s.qinc, s.qtmp)
-    _normalize(s.qtmp)
-    for i in range(4):
-        q_hat[i] = s.qtmp[i]
+    quat_mul_exp(q_hat, x[0:3], q_hat)
     for i in range(3):
         b_hat[i] += x[3 + i]
     for i in range(9):
         p_hat[i] += x[6 + i]
     # fresh A, ω̂ for the propagation
-    return True, _rate(gyro, b_hat, p_hat, a, w)
+    return True, rate_estimate(gyro, b_hat, p_hat, a, w)
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _record_posterior(
     rec: Records,
     bi: int,
@@ -618,19 +488,15 @@ def _record_posterior(
     return ok
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _propagate_attitude(q_hat: np.ndarray, w: np.ndarray, dt: float, s: _Scratch) -> None:
     """Ĉ ← Ĉ Exp(ω̂ Δt)."""
     for i in range(3):
         s.vec[i] = w[i] * dt
-    quat_from_rotvec(s.vec, s.qinc)
-    quat_mul(q_hat, s.qinc, s.qtmp)
-    _normalize(s.qtmp)
-    for i in range(4):
-        q_hat[i] = s.qtmp[i]
+    quat_mul_exp(q_hat, s.vec, q_hat)
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _noise_correlation(
     gg: np.ndarray, a: np.ndarray, corr_scale: np.ndarray, c_tr: np.ndarray
 ) -> None:
@@ -646,39 +512,7 @@ def _noise_correlation(
             c_tr[i, j] = v * corr_scale[i]
 
 
-@_epoch_jit(inline=True)
-def _phi_top_rows(
-    rr: np.ndarray,
-    gg: np.ndarray,
-    a: np.ndarray,
-    aom: np.ndarray,
-    ratio: np.ndarray,
-    phi_top: np.ndarray,
-) -> None:
-    """Rows 0..2 of Φ̃ = D⁻¹ Φ D (the other rows of Φ are those of the identity)::
-
-        Φ_top = [R, −Γ A, −Γ A Ω(ω̂)],   R = Exp(−ω̂ Δt),  Γ = Δt J(−ω̂ Δt)
-
-    ``rr`` = R, ``gg`` = Γ, ``aom`` = A Ω(ω̂), ``ratio`` = d_j / d_i.
-    """
-    for i in range(3):
-        for j in range(3):
-            # Φ̃_θθ = R d_θj / d_θi
-            phi_top[i, j] = rr[i, j] * ratio[i, j]
-            # Φ̃_θb = −(Γ A) d_bj / d_θi
-            v = 0.0
-            for c in range(3):
-                v += gg[i, c] * a[c, j]
-            phi_top[i, 3 + j] = -v * ratio[i, 3 + j]
-        for l in range(9):
-            # Φ̃_θp = −(Γ A Ω) d_pl / d_θi
-            v = 0.0
-            for c in range(3):
-                v += gg[i, c] * aom[c, l]
-            phi_top[i, 6 + l] = -v * ratio[i, 6 + l]
-
-
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _qd_quadrature(
     wx: np.ndarray,
     wx2: np.ndarray,
@@ -707,7 +541,7 @@ def _qd_quadrature(
     for r_ in range(3):
         dq[r_] = c.sigma_u**2
     for l in range(9):
-        dq[_OM_ROW[l]] += q_c[l] * w[_OM_COL[l]] ** 2
+        dq[OM_ROW[l]] += q_c[l] * w[OM_COL[l]] ** 2
     for i in range(3):
         for j in range(3):
             aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
@@ -723,7 +557,7 @@ def _qd_quadrature(
         # node s_j and weight w_j on [0, Δt]
         s_j = c.gl_s[n_nodes - 2, nd] * dt
         w_j = c.gl_w[n_nodes - 2, nd] * dt
-        _transition(wx, wx2, rate, s_j, rr, gg)
+        attitude_transition(wx, wx2, rate, s_j, rr, gg)
         for i in range(3):
             for j in range(3):
                 v1 = 0.0
@@ -743,7 +577,7 @@ def _qd_quadrature(
                 g_int[i, j] += w_j * gg[i, j]
 
 
-@_epoch_jit(inline=True)
+@kernel_jit(inline=True)
 def _propagate_covariance(
     p: np.ndarray,
     q_hat: np.ndarray,
@@ -818,18 +652,18 @@ def _propagate_covariance(
     if correlated:
         # P̃ −= Φ̃ K̃ C̃ᵀ + C̃ K̃ᵀ Φ̃ᵀ + C̃ S̃⁻¹ C̃ᵀ,  Ĉ ← Ĉ Exp(D_θ C̃ S̃⁻¹ ν̃)
         _correlation_correction(
-            p, q_hat, s.ws, s.c_tr, phi_top, s.w_corr, s.sinv_rr, s.qinc, s.qtmp, s.vec, c.d, tmp
+            p, q_hat, s.ws, s.c_tr, phi_top, s.w_corr, s.sinv_rr, s.vec, c.d, tmp
         )
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@kernel_jit(nrt=True)
 def _run_trial(bi: int, state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
     """All epochs of ``inputs`` for trial ``bi``: allocates the trial's work arrays and runs
     :func:`_epoch_loop`."""
     _epoch_loop(bi, state, inputs, c, rec, _scale_factors(c), _make_scratch(6 if c.use_rate else 3))
 
 
-@_epoch_jit()
+@kernel_jit()
 def _epoch_loop(
     bi: int,
     state: FilterState,
@@ -840,7 +674,7 @@ def _epoch_loop(
     s: _Scratch,
 ) -> None:
     """Per epoch of trial ``bi``: measurement update and reset, records, then propagation to
-    the next epoch (module doc). Compiled without the NRT (see :func:`_epoch_jit`)."""
+    the next epoch (module doc). Compiled without the NRT (see :func:`qkf.core.jit.kernel_jit`)."""
     q_hat, b_hat, p_hat = state.q_hat[bi], state.b_hat[bi], state.p_hat[bi]
     p = state.pt[bi]
     gyro, ads_q, ads_rate = inputs.gyro[bi], inputs.ads_q[bi], inputs.ads_rate[bi]
@@ -852,7 +686,7 @@ def _epoch_loop(
             _record_diverged(rec, bi, k)
             continue
         # A = (I + K(p̂))⁻¹, ω̂ = A (ω̃ − b̂)
-        bad = not _rate(gyro[k], b_hat, p_hat, a, w)
+        bad = not rate_estimate(gyro[k], b_hat, p_hat, a, w)
         updated_rate = False
         # ---- measurement update and reset ---------------------------------------------------
         for i in range(15):
@@ -890,21 +724,21 @@ def _epoch_loop(
         _propagate_attitude(q_hat, w, c.dt, s)
         for l in range(9):
             s.q_c[l] = kappa[k, l] * c.qp0  # q_p = κ q_p0
-        _a_omega(a, w, s.aom)
+        a_omega(a, w, s.aom)
         for i in range(3):
             s.vec[i] = -w[i]
-        _skew_sq(s.vec, s.wx, s.wx2)
+        skew_and_square(s.vec, s.wx, s.wx2)
         rate = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
         # R = Exp(−ω̂ Δt), Γ = Δt J(−ω̂ Δt)
-        _transition(s.wx, s.wx2, rate, c.dt, s.rr, s.gg)
+        attitude_transition(s.wx, s.wx2, rate, c.dt, s.rr, s.gg)
         if updated_rate:
             _noise_correlation(s.gg, a, sc.corr_scale, s.c_tr)
-        _phi_top_rows(s.rr, s.gg, a, s.aom, sc.ratio, s.phi_top)
+        phi_top_rows(s.rr, s.gg, a, s.aom, sc.ratio, s.phi_top)
         _qd_quadrature(s.wx, s.wx2, rate, a, w, c, sc.max_nodes, s)
         _propagate_covariance(p, q_hat, a, c, sc, s, updated_rate)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
 def run_block(state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
     """Run the n epochs of ``inputs`` for every trial, trials in parallel; ``state`` and ``rec``
     are written in place.

@@ -27,6 +27,11 @@ Measurements: attitude ``H_a = [I, 0, 0]``, ``R_a = σ_a² I``; angular rate
 ``H_r = [0, −A, −A Ω(ω̂)]``, ``R_r = σ_r² I + σ_v² A Aᵀ / Δt``.
 
 All quantities SI: rad, rad/s, s; ``σ_v`` in rad/√s, ``σ_u`` in rad/s^1.5, ``q_p`` in 1/s.
+
+This is the numpy reference. Compiled code (the filter kernel, the batch estimator) and the
+methods that need the filter's own ``A``, ``Φ`` or attitude innovation use its compiled twin,
+:mod:`qkf.transfer_alignment.model_compiled`; ``tests/test_model_compiled.py`` checks the two
+against each other.
 """
 
 from __future__ import annotations
@@ -66,11 +71,17 @@ def omega_matrix(w: np.ndarray) -> np.ndarray:
     return out
 
 
+def rate_matrix(p_hat: np.ndarray) -> np.ndarray:
+    """``A = (I + K(p̂))⁻¹`` (…, 3, 3) of calibration vectors ``p̂`` (…, 9): the map from the
+    bias-corrected gyro output to the rate estimate."""
+    return np.linalg.inv(np.eye(3) + calibration_matrix(p_hat))
+
+
 def rate_estimate(
     gyro: np.ndarray, b_hat: np.ndarray, p_hat: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Corrected rate: returns ``(A, ω̂)`` with ``A = (I + K(p̂))⁻¹`` and ``ω̂ = A (ω̃ − b̂)``."""
-    a = np.linalg.inv(np.eye(3) + calibration_matrix(p_hat))
+    a = rate_matrix(p_hat)
     w_hat = np.einsum("...ij,...j->...i", a, np.asarray(gyro) - np.asarray(b_hat))
     return a, w_hat
 

@@ -1,6 +1,6 @@
 """Studies: one command that runs a set of cases (benchmarks or CRLBs) and plots them together.
 
-A study file (``configs/studies/*.yaml``)::
+A study file (``configs/transfer_alignment/studies/*.yaml``)::
 
     name: matching
     kind: bench                 # bench: Monte Carlo of ``methods``; crlb: the bound only
@@ -53,9 +53,9 @@ from qkf.transfer_alignment.benchmark import (
     parse_methods,
     run_benchmark,
 )
-from qkf.transfer_alignment.config import MAX_TRIALS, Config, load_config
+from qkf.transfer_alignment.config import MAX_TRIALS, PRESETS, STUDIES, Config, load_config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
-from qkf.transfer_alignment.methods import NamedMethod
+from qkf.transfer_alignment.methods import NamedMethod, resolve_method_settings
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, group_rms, summarize
 from qkf.transfer_alignment.report import (
     INTERVAL_COLUMNS,
@@ -347,14 +347,15 @@ def load_study(path: str | Path, sets: list[str] | None = None) -> tuple[Study, 
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
-    path = presets.resolve(path, "studies")
+    path = presets.resolve(path, STUDIES)
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
     # a CRLB study plots the same summary columns (of the bound), so the same names apply
     if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
+    named = []
     if study.kind == "bench":
         try:
-            parse_methods(study.methods)
+            named = parse_methods(study.methods)
         except ValueError as exc:
             raise ConfigError(f"{path}: methods: {exc}") from None
     _check_labels(path, study)
@@ -362,7 +363,9 @@ def load_study(path: str | Path, sets: list[str] | None = None) -> tuple[Study, 
     for i, case in enumerate(study.cases):
         try:
             base = case_base(path, case.base or study.base)
-            configs.append(load_config(base, [*case.set, *(sets or [])]))
+            cfg = load_config(base, [*case.set, *(sets or [])])
+            # every case's method settings checked now, not when its turn comes
+            configs.append(resolve_method_settings(cfg, named, str(base)))
         except ConfigError as exc:
             raise ConfigError(f"{path}: cases.{i} ({case.label}): {exc}") from None
     return study, configs
@@ -393,13 +396,10 @@ def case_base(study_path: Path, base: str) -> Path:
     """A case's base config: the path relative to the study file if it exists, else the preset
     of that name (``base: paper``), else the relative path (reported missing by the loader)."""
     rel = study_path.parent / base
-    if rel.exists() or not presets.is_preset_name(base):
-        return rel.resolve() if rel.exists() else rel
-    # by name only, never relative to the working directory (presets.resolve looks there first)
-    stem = Path(base).stem.replace("-", "_")
-    if stem in presets.preset_names():
-        return presets.preset_dir() / f"{stem}.yaml"
-    return rel
+    if rel.exists():
+        return rel.resolve()
+    # by name only, never relative to the working directory
+    return presets.preset_path(base, PRESETS) or rel
 
 
 def run_study(

@@ -16,20 +16,29 @@ once and returns a :class:`MethodOutput` (contract: :mod:`.base`). ``qkf bench -
     any of the above, shown as ``LABEL`` in tables and plots (a method may suggest its own
     short name through a ``default_label`` attribute: ``policy:PATH`` uses the model's file
     stem, or its folder's name for the usual ``model.zip``/``model.npz``).
+
+A method's settings live in its own section of ``adaptive`` (:func:`.base.uses_settings`,
+:func:`.base.method_settings`); :func:`resolve_method_settings` checks a config's sections
+against the methods of a run.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from qkf.core.config import ConfigError, StrictModel
 from qkf.core.registry import Registry, RegistryError, load_object
+from qkf.transfer_alignment.config import Config, resolve_sections
 from qkf.transfer_alignment.methods.alarm_burst import run_alarm_burst
 from qkf.transfer_alignment.methods.base import (
     Method,
     MethodOutput,
     MethodOutputError,
+    declared_settings,
+    method_settings,
     prepare,
+    uses_settings,
     validate_output,
 )
 from qkf.transfer_alignment.methods.batch import run_batch
@@ -109,6 +118,10 @@ def resolve_method(spec: str) -> NamedMethod:
         raise MethodSpecError(str(exc)) from None
     if not callable(method):
         raise MethodSpecError(f"{target!r} is not callable")
+    try:  # a settings declaration that cannot be used is the method's fault: refuse it here
+        declared_settings(method)
+    except ValueError as exc:
+        raise MethodSpecError(f"{target!r}: {exc}") from None
     # a factory may suggest a shorter name than its spec (policy:PATH → the model's folder)
     default = getattr(method, "default_label", None)
     return NamedMethod(label or (default if isinstance(default, str) else target), method, spec)
@@ -131,6 +144,40 @@ def _resolve_target(target: str) -> Method:
     return load_object(target)
 
 
+def resolve_method_settings(
+    cfg: Config, methods: Iterable[NamedMethod], source: str = "config"
+) -> Config:
+    """``cfg`` with the settings sections of ``methods`` checked and resolved, before any work.
+
+    Each method's declared section (:func:`.base.uses_settings`) is validated by its model, its
+    defaults written in where the config leaves them out (so the manifest records what ran);
+    a user section of ``adaptive`` that none of ``methods`` reads is refused as an unknown key.
+    Two methods may share a section only with the same model. ``source`` names the config in
+    the messages (the file or preset); raises :class:`~qkf.core.config.ConfigError` with every
+    problem, one line each, ``source: adaptive.<section>.<field>: message``.
+
+    :func:`~qkf.transfer_alignment.benchmark.run_benchmark` calls it; a command that loads a
+    config and resolves ``--methods`` calls it too, with the config's name, to refuse a bad
+    setting with the file named before it prepares its output.
+    """
+    claims: dict[str, tuple[type[StrictModel], str]] = {}
+    for m in methods:
+        try:
+            declared = declared_settings(m.method)
+        except ValueError as exc:
+            raise MethodSpecError(f"method {m.name!r}: {exc}") from None
+        if declared is None:
+            continue
+        section, model = declared
+        earlier = claims.setdefault(section, (model, f"method {m.name!r}"))
+        if earlier[0] is not model:
+            raise ConfigError(
+                f"{source}: adaptive.{section}: read by {earlier[1]} as {earlier[0].__name__} "
+                f"and by method {m.name!r} as {model.__name__}; a section has one model"
+            )
+    return resolve_sections(cfg, claims, source)
+
+
 __all__ = [
     "BUILTIN_METHODS",
     "METHODS",
@@ -140,7 +187,10 @@ __all__ = [
     "MethodOutputError",
     "MethodSpecError",
     "NamedMethod",
+    "method_settings",
     "prepare",
     "resolve_method",
+    "resolve_method_settings",
+    "uses_settings",
     "validate_output",
 ]

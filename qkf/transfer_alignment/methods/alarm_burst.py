@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.alarms import ChangeClock
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.alarms import change_clock
+from qkf.transfer_alignment.config import AlarmBurstConfig, Config
 from qkf.transfer_alignment.methods.base import MethodOutput, new_filter, per_epoch
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, tune_oracle
@@ -49,7 +49,7 @@ class AlarmBurstSchedule:
         period = max(1, round(ab.period_s / cfg.scenario.dt_s))
         kf = new_filter(cfg, data)
         cov = CovarianceRecorder(cfg, data.n_trials)
-        clock = ChangeClock(data.n_trials, ab.quiet_s)
+        clock = change_clock(cfg, data.n_trials)  # the alarm settings observation v2 sees too
         kappa = np.full(data.n_trials, orc.base)
         est, held = [], []
         for k0 in range(0, data.n_epochs, period):
@@ -57,7 +57,7 @@ class AlarmBurstSchedule:
             rec = step_recording(kf, data, k0, k1, kappa, cov)
             est.append(rec.est)
             held.append(kappa)
-            alarm = nis_per_row(rec.nis, kf.params.n_meas) > ab.nis_alarm
+            alarm = clock.alarms(nis_per_row(rec.nis, kf.params.n_meas))
             age = clock.update(alarm, (k1 - k0) * cfg.scenario.dt_s)
             kappa = np.where(age < orc.window_s - 1e-9, orc.after, orc.base)
         out = MethodOutput(
@@ -75,6 +75,9 @@ class AlarmBurstSchedule:
 
 class AlarmBurst:
     """The ``alarm-burst`` method: tuned once per benchmark in :meth:`prepare`."""
+
+    settings_section = "alarm_burst"  # the settings it declares (methods.base.uses_settings)
+    settings = AlarmBurstConfig
 
     def prepare(self, cfg: Config) -> AlarmBurstSchedule:
         return AlarmBurstSchedule(tune_oracle(cfg, progress_label="tune alarm-burst"))

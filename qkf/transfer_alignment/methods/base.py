@@ -5,16 +5,25 @@ A *method* is a callable ``method(cfg, data) -> MethodOutput`` that filters ever
 ``prepare(cfg) -> method``: work done once per run, in the driver process, before trials are
 dispatched to the backend (the tuned KF picks its κ there); the returned method must be
 picklable (a module-level function, or a ``functools.partial`` / dataclass of one).
+
+A method with settings declares the section of ``adaptive`` it reads and the
+:class:`~qkf.core.config.StrictModel` that validates it (:func:`uses_settings`), and reads it
+with :func:`method_settings`: ``adaptive.<section>`` in YAML and ``--set`` then reach it, are
+checked before any work and are recorded in the run's manifest (docs/architecture.md, "Recipe:
+add a method"). The built-in methods' sections are fields of
+:class:`~qkf.transfer_alignment.config.AdaptiveConfig`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import Any, Protocol, TypeVar, runtime_checkable
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config
+from qkf.core.config import StrictModel
+from qkf.transfer_alignment.config import Config, SettingsT, read_section
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -113,18 +122,73 @@ def new_filter(cfg: Config, data: ScenarioData, n_copies: int = 1) -> TransferAl
     return kf
 
 
-S = TypeVar("S")
+SETTINGS_SECTION = "settings_section"
+"""Attribute of a method naming the section of ``adaptive`` it reads (:func:`uses_settings`)."""
+SETTINGS_MODEL = "settings"
+"""Attribute of a method holding the model of that section (a ``StrictModel`` subclass)."""
+
+M = TypeVar("M")
 
 
-def section_settings(cls: type[S], cfg: Config, section: str) -> S:
-    """A method's settings dataclass from ``cfg.adaptive.<section>``: the fields the section
-    has, the dataclass's defaults for the others (and for all when the section is absent)."""
-    sec = getattr(cfg.adaptive, section, None)
-    if sec is None:
-        return cls()
-    names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
-    values: dict[str, Any] = {n: getattr(sec, n) for n in names if hasattr(sec, n)}
-    return cls(**values)
+def uses_settings(section: str, model: type[StrictModel]) -> Callable[[M], M]:
+    """Declare that the decorated method reads ``cfg.adaptive.<section>`` as ``model``.
+
+    ``model`` is a :class:`~qkf.core.config.StrictModel` subclass: its defaults are the
+    method's defaults and its fields are validated (unknown keys refused), so ``section`` in a
+    YAML file or ``--set adaptive.<section>.<field>=…`` is checked, with the field named, before
+    a benchmark does any work. The declaration is two attributes, ``settings_section`` and
+    ``settings``; a callable class may set them as class attributes instead. The method reads
+    its settings with :func:`method_settings`. A built-in section (``imm``) may be declared
+    with its own model only.
+    """
+    check_declaration(section, model)
+
+    def declare(method: M) -> M:
+        setattr(method, SETTINGS_SECTION, section)
+        setattr(method, SETTINGS_MODEL, model)
+        return method
+
+    return declare
+
+
+def check_declaration(section: object, model: object) -> None:
+    """``ValueError`` unless ``section`` can name a config section (an identifier, no leading
+    underscore: it is a YAML key and a step of a dotted ``--set`` key) and ``model`` is a
+    ``StrictModel`` subclass (whose unknown keys are errors)."""
+    if not isinstance(section, str) or not section.isidentifier() or section.startswith("_"):
+        raise ValueError(
+            f"settings section {section!r} must be an identifier without a leading underscore"
+        )
+    if not (isinstance(model, type) and issubclass(model, StrictModel)):
+        raise ValueError(
+            f"settings of section {section!r} must be a StrictModel subclass "
+            f"(qkf.core.config), not {model!r}"
+        )
+
+
+def declared_settings(method: object) -> tuple[str, type[StrictModel]] | None:
+    """The ``(section, model)`` a method declares (:func:`uses_settings`), or None if it
+    declares none; ``ValueError`` for a declaration that cannot be used."""
+    section = getattr(method, SETTINGS_SECTION, None)
+    if section is None:
+        return None
+    model = getattr(method, SETTINGS_MODEL, None)
+    check_declaration(section, model)
+    assert isinstance(model, type) and issubclass(model, StrictModel)  # for the type checker
+    return section, model
+
+
+def method_settings(cfg: Config, section: str, model: type[SettingsT]) -> SettingsT:
+    """A method's settings: ``cfg.adaptive.<section>`` as ``model`` (the section it declares
+    with :func:`uses_settings`), the model's defaults where the config has none.
+
+    Call it where the settings are used, inside the method: it reads the config the method is
+    given, so it works in any process a backend runs the method in (the config travels with
+    the trials). In a benchmark the section was checked before any work; a config never
+    resolved (a method called directly) is checked here. Raises
+    :class:`~qkf.core.config.ConfigError` naming ``adaptive.<section>.<field>``.
+    """
+    return read_section(cfg, section, model)
 
 
 def action_values(cfg: Config) -> np.ndarray:

@@ -41,48 +41,22 @@ Transfer alignment (:func:`run_covariance_matching`):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, CovarianceMatchingConfig
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
-    section_settings,
+    uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.model import CALIB
 from qkf.transfer_alignment.scenario import ScenarioData
 
 ATT = slice(0, 3)  # attitude states, and the attitude rows of the innovation
-
-
-@dataclass(frozen=True)
-class CovarianceMatchingSettings:
-    """Parameters of :func:`run_covariance_matching` (``adaptive.covariance_matching``)."""
-
-    window: int = 30  # W, measurement epochs in the sliding window
-    warmup_s: float = 100.0  # innovations enter the window only from this time on (s)
-    adapt_r: bool = True  # also estimate the attitude measurement noise
-    r_floor: float = 0.1  # eigenvalues of R̂_a ≥ (r_floor · assumed σ_a)²
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.window <= 100_000:
-            raise ValueError(
-                f"covariance matching window must be in [1, 100000], got {self.window}"
-            )
-        if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0.0):
-            raise ValueError(f"covariance matching warmup_s must be ≥ 0, got {self.warmup_s}")
-        if not (math.isfinite(self.r_floor) and 0.0 < self.r_floor <= 1.0):
-            raise ValueError(f"covariance matching r_floor must be in (0, 1], got {self.r_floor}")
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> CovarianceMatchingSettings:
-        """The ``adaptive.covariance_matching`` section if the config has one, else the defaults."""
-        return section_settings(cls, cfg, "covariance_matching")
 
 
 @dataclass(frozen=True)
@@ -122,13 +96,15 @@ def floor_eigenvalues(m: np.ndarray, floor: float) -> np.ndarray:
     return (v * np.maximum(w, floor)[..., None, :]) @ np.swapaxes(v, -1, -2)
 
 
+@uses_settings("covariance_matching", CovarianceMatchingConfig)
 def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """Covariance-matching AKF (module docstring), batched over trials.
+    """Covariance-matching AKF (module docstring), batched over trials, with the settings of
+    ``adaptive.covariance_matching``.
 
     Logs: ``kappa_terms`` (B, N, 9), the κ per calibration term in use at each epoch;
     ``sigma_a`` (B, N), the attitude sigma (rad) of each epoch's update (with ``adapt_r``).
     """
-    st = CovarianceMatchingSettings.from_config(cfg)
+    st = cfg.adaptive.covariance_matching
     kf = new_filter(cfg, data)
     cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params

@@ -18,7 +18,8 @@ at ``k`` and the propagation to ``k + 1`` in one call and cannot scale ``Φ P Φ
 each epoch:
 
 1. before the call for epoch ``k``, the attitude innovation ``ν_k = Log(Ĉ⁻ᵀ C_ADS,k)`` is formed
-   from the filter's predicted attitude (exactly what the filter will compute; tested);
+   from the filter's predicted attitude (exactly what the filter will compute, bit for bit: the
+   compiled model's :func:`~qkf.transfer_alignment.model_compiled.attitude_innovation`);
 2. ``λ_k`` from the *attitude rows* only (``H = [I 0 0]``, ``R = σ_a² I``): the attitude is
    measured in both matching schemes, and mixing the traces of rad² and (rad/s)² rows would
    weigh them arbitrarily. ``H Q Hᵀ`` is generalised to everything in ``P⁻`` that is not
@@ -29,7 +30,8 @@ each epoch:
    unchanged correlation terms). With λ ≥ 1 it only adds a positive semi-definite term, so
    ``P⁻`` stays symmetric positive definite. ``P⁺_{k−1}`` is the recorded posterior covariance
    of the previous call and ``Φ_{k−1}`` the exact transition at that call's ``ω̂`` and
-   ``A = (I + K(p̂))⁻¹`` (:func:`transition`);
+   ``A = (I + K(p̂))⁻¹`` (:func:`transition`: the compiled model's
+   :func:`~qkf.transfer_alignment.model_compiled.transition_matrix`, the kernel's arithmetic);
 4. the call for epoch ``k`` (update with the faded ``P⁻_k``, propagation with κ = 1).
 
 ``V`` starts at the first epoch where λ is evaluated (epoch 1: the innovation of epoch 0 is zero
@@ -60,52 +62,20 @@ Units SI: rad, rad/s, s; ``V``, ``R``, ``M``, ``N`` in rad² for the attitude ro
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, FadingConfig
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
-    section_settings,
+    uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
-from qkf.transfer_alignment.model import (
-    BIAS,
-    CALIB,
-    N_STATES,
-    THETA,
-    attitude_transition,
-    calibration_matrix,
-    omega_matrix,
-)
+from qkf.transfer_alignment.model import CALIB, THETA
+from qkf.transfer_alignment.model_compiled import attitude_innovation
+from qkf.transfer_alignment.model_compiled import transition_matrix as transition
 from qkf.transfer_alignment.scenario import ScenarioData
-
-
-@dataclass(frozen=True)
-class FadingParams:
-    """Strong-tracking settings (``adaptive.fading`` once the config has that section)."""
-
-    forgetting: float = 0.95  # ρ of V_k = (ρ V_{k−1} + ν νᵀ)/(1 + ρ)
-    softening: float = 4.0  # β ≥ 1 in N_k = V_k − β R − H Q Hᵀ
-    lambda_max: float = 10.0  # upper bound of one inflation
-
-    def __post_init__(self) -> None:
-        if not self.forgetting > 0.0:
-            raise ValueError(f"forgetting must be positive, got {self.forgetting}")
-        if not self.softening >= 1.0:
-            raise ValueError(f"softening must be at least 1, got {self.softening}")
-        if not self.lambda_max >= 1.0:
-            raise ValueError(f"lambda_max must be at least 1, got {self.lambda_max}")
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> FadingParams:
-        """The ``adaptive.fading`` section if the config has one, else the defaults."""
-        return section_settings(cls, cfg, "fading")
-
 
 # ---- generic strong-tracking algebra (numpy, batched over leading axes) ------------------------
 
@@ -168,18 +138,6 @@ def strong_tracking_step(
 # ---- the transfer-alignment filter --------------------------------------------------------------
 
 
-def transition(rate: np.ndarray, p_hat: np.ndarray, dt: float) -> np.ndarray:
-    """Exact ``Φ`` (…, 15, 15) over ``dt`` (s) at ``ω̂`` (rad/s) and ``A = (I + K(p̂))⁻¹``:
-    ``[[R, −Γ A, −Γ A Ω(ω̂)], [0, I, 0], [0, 0, I]]`` (as :func:`model.discretize`)."""
-    a = np.linalg.inv(np.eye(3) + calibration_matrix(p_hat))
-    r_dt, g_dt = attitude_transition(rate, np.full(rate.shape[:-1], dt))
-    phi = np.broadcast_to(np.eye(N_STATES), (*rate.shape[:-1], N_STATES, N_STATES)).copy()
-    phi[..., THETA, THETA] = r_dt  # R = Exp(−ω̂ Δt)
-    phi[..., THETA, BIAS] = -g_dt @ a  # −Γ A
-    phi[..., THETA, CALIB] = -g_dt @ a @ omega_matrix(rate)  # −Γ A Ω(ω̂)
-    return phi
-
-
 def prior_cap(p_pred: np.ndarray, php: np.ndarray, p0_var: np.ndarray) -> np.ndarray:
     """The largest λ (…) for which no diagonal element of ``P⁻ + (λ − 1) Φ P⁺ Φᵀ`` exceeds the
     prior variance ``P_0,ii`` (or its current value, if that is larger already):
@@ -192,20 +150,16 @@ def prior_cap(p_pred: np.ndarray, php: np.ndarray, p0_var: np.ndarray) -> np.nda
     return 1.0 + np.min(ratio, axis=-1)
 
 
-def attitude_innovation(q_pred: np.ndarray, ads_q: np.ndarray) -> np.ndarray:
-    """``ν_a = Log(Ĉ⁻ᵀ C_ADS)`` (…, 3) rad, quaternions scalar-last."""
-    shape = q_pred.shape[:-1]
-    rel = Rotation.from_quat(q_pred.reshape(-1, 4)).inv() * Rotation.from_quat(ads_q.reshape(-1, 4))
-    return np.asarray(rel.as_rotvec()).reshape(*shape, 3)
-
-
+@uses_settings("fading", FadingConfig)
 def run_fading(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """The ``fading`` method: :func:`fading_filter` with the config's settings."""
-    return fading_filter(cfg, data, FadingParams.from_config(cfg))
+    """The ``fading`` method: :func:`fading_filter` with the config's settings
+    (``adaptive.fading``)."""
+    return fading_filter(cfg, data, cfg.adaptive.fading)
 
 
-def fading_filter(cfg: Config, data: ScenarioData, prm: FadingParams) -> MethodOutput:
-    """Strong-tracking filter, batched over trials, stepping one epoch at a time.
+def fading_filter(cfg: Config, data: ScenarioData, prm: FadingConfig) -> MethodOutput:
+    """Strong-tracking filter, batched over trials, stepping one epoch at a time, with the
+    settings ``prm`` (``FadingConfig``: ``forgetting`` ρ, ``softening`` β, ``lambda_max``).
 
     Logs λ per epoch (``lambda``, (B, N)) and the unclipped equivalent calibration κ
     (``kappa_equiv``, (B, N))."""

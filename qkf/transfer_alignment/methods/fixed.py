@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.core.montecarlo import progress_stage
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, TunedConfig
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.metrics import state_errors
@@ -73,6 +73,9 @@ class TunedKF:
     The tuning runs once per benchmark, in :meth:`prepare` (driver process); calling the
     method unprepared tunes on the spot.
     """
+
+    settings_section = "tuned"  # the settings it declares (methods.base.uses_settings)
+    settings = TunedConfig
 
     def prepare(self, cfg: Config) -> FixedKappa:
         kappa, _ = tuned_kappa(cfg)

@@ -66,19 +66,18 @@ Units SI throughout: rad, rad/s, s; ``q_p`` in 1/s; ``U`` in s (per 1/s of densi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from qkf.core.so3 import skew
-from qkf.transfer_alignment.config import Config
+from qkf.core.so3 import quat_conj, quat_exp, quat_log, quat_mul, skew
+from qkf.transfer_alignment.config import Config, ImmConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
-    section_settings,
+    uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
 from qkf.transfer_alignment.methods.mmae import (
@@ -87,7 +86,7 @@ from qkf.transfer_alignment.methods.mmae import (
     record_bank_covariance,
     step_bank,
 )
-from qkf.transfer_alignment.model import CALIB, N_STATES, THETA, calibration_matrix, omega_matrix
+from qkf.transfer_alignment.model import CALIB, N_STATES, THETA, omega_matrix, rate_matrix
 from qkf.transfer_alignment.scenario import ScenarioData
 
 BLOCK = 200  # epochs per combination of the bank's estimates (bounds memory)
@@ -95,28 +94,6 @@ UNIT_Q_ORDER = 4
 """Highest total power of ``[ω̂×] Δt`` in the series of :func:`unit_calibration_noise`."""
 
 Switching = Literal["uniform", "neighbours"]
-
-
-@dataclass(frozen=True)
-class ImmParams:
-    """IMM settings (``adaptive.imm`` once the config has that section, else these defaults)."""
-
-    p_stay: float = 0.95  # Π_ii, probability of keeping the model over one mixing interval
-    switching: Switching = "uniform"  # where the off-diagonal mass 1 − p_stay goes
-    mix_every: int = 1  # epochs per mixing interval M
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.p_stay < 1.0:
-            raise ValueError(f"p_stay must be in (0, 1), got {self.p_stay}")
-        if self.switching not in ("uniform", "neighbours"):
-            raise ValueError(f"switching must be 'uniform' or 'neighbours', got {self.switching!r}")
-        if self.mix_every < 1:
-            raise ValueError(f"mix_every must be at least 1, got {self.mix_every}")
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> ImmParams:
-        """The ``adaptive.imm`` section if the config has one, else the defaults."""
-        return section_settings(cls, cfg, "imm")
 
 
 # ---- generic IMM algebra (numpy, batched over leading axes) -----------------------------------
@@ -212,7 +189,7 @@ def unit_calibration_noise(dt: float, rate: np.ndarray, p_hat: np.ndarray) -> np
     summed to ``n + m ≤ UNIT_Q_ORDER`` (relative error ~ (|ω̂|Δt)⁵/5!: 1e-11 at 1 deg/s and
     Δt = 1 s; checked against :func:`model.discretize` in the tests).
     """
-    a = np.linalg.inv(np.eye(3) + calibration_matrix(p_hat))
+    a = rate_matrix(p_hat)  # A = (I + K(p̂))⁻¹
     aom = a @ omega_matrix(rate)  # A Ω(ω̂)   (…, 3, 9)
     m = aom @ np.swapaxes(aom, -1, -2)  # A Ω Ωᵀ Aᵀ
     neg_w = -skew(rate)
@@ -234,33 +211,6 @@ def unit_calibration_noise(dt: float, rate: np.ndarray, p_hat: np.ndarray) -> np
     u[..., CALIB, THETA] = np.swapaxes(u_tp, -1, -2)
     u[..., CALIB, CALIB] = dt * np.eye(9)
     return u
-
-
-def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product ``p ⊗ q`` of quaternions (…, 4), scalar-last: ``R(p ⊗ q) = R(p) R(q)``."""
-    pv, pw = p[..., 0:3], p[..., 3:4]
-    qv, qw = q[..., 0:3], q[..., 3:4]
-    vec = pw * qv + qw * pv + np.cross(pv, qv)
-    return np.concatenate([vec, pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)], axis=-1)
-
-
-def quat_log(q: np.ndarray) -> np.ndarray:
-    """Rotation vector (…, 3) rad of unit quaternions (…, 4), scalar-last, angle in [0, π]."""
-    q = np.where(q[..., 3:4] < 0.0, -q, q)
-    v, w = q[..., 0:3], q[..., 3]
-    n = np.linalg.norm(v, axis=-1)
-    small = n < 1e-12
-    k = np.where(
-        small, 2.0 / np.where(small, w, 1.0), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n)
-    )
-    return k[..., None] * v
-
-
-def quat_exp(phi: np.ndarray) -> np.ndarray:
-    """Unit quaternion (…, 4), scalar-last, of ``Exp(φ)`` for rotation vectors (…, 3) rad."""
-    theta = np.linalg.norm(phi, axis=-1, keepdims=True)
-    k = 0.5 * np.sinc(theta / (2.0 * np.pi))  # sin(θ/2)/θ
-    return np.concatenate([k * phi, np.cos(0.5 * theta)], axis=-1)
 
 
 def mix_bank(
@@ -289,8 +239,7 @@ def mix_bank(
     q = np.where(dead[:, None], np.array([0.0, 0.0, 0.0, 1.0]), kf.q_hat).reshape(b, n_act, 4)
     best = mu.argmax(axis=1)
     q_ref = q[np.arange(b), best][:, None]  # (B, 1, 4)
-    conj = q_ref * np.array([-1.0, -1.0, -1.0, 1.0])
-    rel = quat_log(quat_mul(conj, q)).reshape(-1, 3)  # δθ_i = Log(Ĉ_refᵀ Ĉ_i)
+    rel = quat_log(quat_mul(quat_conj(q_ref), q)).reshape(-1, 3)  # δθ_i = Log(Ĉ_refᵀ Ĉ_i)
     x = np.concatenate([rel, kf.b_hat, kf.p_hat], axis=1)
     kq = (kappas * qp0)[None, :, None, None]  # κ_j q_p0, 1/s
     u = unit_q[:, None]  # (B, 1, 15, 15)
@@ -313,13 +262,15 @@ def mix_bank(
     return np.where(live[:, None], c_bar, mu)
 
 
+@uses_settings("imm", ImmConfig)
 def run_imm(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """The ``imm`` method: :func:`imm_filter` with the config's settings."""
-    return imm_filter(cfg, data, ImmParams.from_config(cfg))
+    """The ``imm`` method: :func:`imm_filter` with the config's settings (``adaptive.imm``)."""
+    return imm_filter(cfg, data, cfg.adaptive.imm)
 
 
-def imm_filter(cfg: Config, data: ScenarioData, prm: ImmParams) -> MethodOutput:
-    """The IMM over the κ action set, all trials at once (bank of A × B filters).
+def imm_filter(cfg: Config, data: ScenarioData, prm: ImmConfig) -> MethodOutput:
+    """The IMM over the κ action set, all trials at once (bank of A × B filters), with the
+    settings ``prm`` (``ImmConfig``: ``p_stay``, ``switching``, ``mix_every``).
 
     Logs the model probabilities per epoch (``probabilities``, (B, N, A)) and the arithmetic
     mean ``Σ μ_j κ_j`` (``kappa_arith``, (B, N))."""

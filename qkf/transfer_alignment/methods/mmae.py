@@ -15,9 +15,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, MmaeConfig
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.covariance import (
     CovarianceRecorder,
     mixture_covariance,
@@ -116,6 +121,7 @@ def record_bank_covariance(
         out.take(k, mixture_covariance(bank_est[:, :, i], members, w[:, :, i], est_mix[:, i]))
 
 
+@uses_settings("mmae", MmaeConfig)
 def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     """The bank over all trials; logs the model probabilities per epoch (``weights``)."""
     kappas = action_values(cfg)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.core.montecarlo import progress_stage
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, OracleConfig
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.metrics import state_errors, window_masks
@@ -116,6 +116,9 @@ def tune_oracle(cfg: Config, progress_label: str = "tune oracle") -> OracleSched
 
 class Oracle:
     """The ``oracle`` method: tuned once per benchmark in :meth:`prepare` (driver process)."""
+
+    settings_section = "oracle"  # the settings it declares (methods.base.uses_settings)
+    settings = OracleConfig
 
     def prepare(self, cfg: Config) -> OracleSchedule:
         return tune_oracle(cfg)

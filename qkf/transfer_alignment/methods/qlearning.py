@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, QkfConfig
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
@@ -36,6 +36,7 @@ from qkf.transfer_alignment.methods.base import (
     method_rng,
     new_filter,
     per_epoch,
+    uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -81,6 +82,7 @@ def epsilon_at(cfg: Config, t_s: float) -> float:
     return q.epsilon_end + (q.epsilon_start - q.epsilon_end) * math.exp(-t_s / q.epsilon_decay_s)
 
 
+@uses_settings("qkf", QkfConfig)
 def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     """QKF over all trials; logs the main filter's κ index per period (``kappa_index``)."""
     qc = cfg.adaptive.qkf

@@ -29,8 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.config import Config, SageHusaConfig
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -68,6 +73,7 @@ def adapt_attitude_noise(
     return np.where(np.isfinite(new), new, r_prev)
 
 
+@uses_settings("sage_husa", SageHusaConfig)
 def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
     """Sage–Husa AKF, batched over trials.
 

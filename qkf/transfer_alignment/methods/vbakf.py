@@ -85,43 +85,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.transfer_alignment import model
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, VbakfConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
-    section_settings,
+    uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
+from qkf.transfer_alignment.model_compiled import attitude_innovation
 from qkf.transfer_alignment.scenario import ScenarioData
-
-
-@dataclass(frozen=True)
-class VbakfSettings:
-    """Parameters of :func:`run_vbakf` (``adaptive.vbakf`` in the config; defaults otherwise)."""
-
-    iterations: int = 10  # N, fixed-point iterations per measurement
-    tau: float = 3.0  # τ ≥ 0: weight of the nominal prediction P̃⁻ against A
-    forgetting: float = 1.0 - math.exp(-4.0)  # ρ ∈ (0, 1]: spreading of the R posterior
-    r_prior_dof: float = 3.0  # τ_R > 0: û_0 = m + 1 + τ_R, Û_0 = τ_R R̃
-    adapt_p: bool = True  # infer P⁻ (False: P̂⁻ = P̃⁻, R only)
-    adapt_r: bool = True  # infer R_a (False: R̂ = R̃)
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.iterations <= 1000:
-            raise ValueError(f"vbakf iterations must be in [1, 1000], got {self.iterations}")
-        if not (math.isfinite(self.tau) and self.tau >= 0.0):
-            raise ValueError(f"vbakf tau must be finite and ≥ 0, got {self.tau}")
-        if not 0.0 < self.forgetting <= 1.0:
-            raise ValueError(f"vbakf forgetting must be in (0, 1], got {self.forgetting}")
-        if not (math.isfinite(self.r_prior_dof) and self.r_prior_dof > 0.0):
-            raise ValueError(f"vbakf r_prior_dof must be finite and > 0, got {self.r_prior_dof}")
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> VbakfSettings:
-        """The ``adaptive.vbakf`` section if the config has one, else the defaults."""
-        return section_settings(cls, cfg, "vbakf")
 
 
 @dataclass(frozen=True)
@@ -221,20 +195,6 @@ def vb_step(
     return VbStep(x=x, p=p, u=u, u_scale=u_scale, p_pred=p_hat, r=r)
 
 
-def attitude_innovation(q_hat: np.ndarray, ads_q: np.ndarray) -> np.ndarray:
-    """``z_a = Log(Ĉᵀ C_ADS)`` (…, 3) rad from scalar-last quaternions, as the filter forms it."""
-    qv, qw = -q_hat[..., :3], q_hat[..., 3:4]  # conj(q̂)
-    pv, pw = ads_q[..., :3], ads_q[..., 3:4]
-    v = qw * pv + pw * qv + np.cross(qv, pv)  # Hamilton product conj(q̂) ⊗ q_ADS
-    w = qw * pw - np.sum(qv * pv, axis=-1, keepdims=True)
-    sign = np.where(w < 0.0, -1.0, 1.0)
-    v, w = v * sign, w * sign
-    nv = np.linalg.norm(v, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k = np.where(nv < 1e-12, 2.0 / w, 2.0 * np.arctan2(nv, w) / nv)
-    return k * v
-
-
 def scaled_measurement(
     kf: TransferAlignmentKF, gyro: np.ndarray, ads_q: np.ndarray, ads_rate: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -263,14 +223,16 @@ def scaled_measurement(
     return nu / e, h * d / e[:, None], r / np.outer(e, e), e
 
 
+@uses_settings("vbakf", VbakfConfig)
 def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """VBAKF (module docstring) on every trial, batched over trials.
+    """VBAKF (module docstring) on every trial, batched over trials, with the settings of
+    ``adaptive.vbakf``.
 
     Logs: ``kappa_terms`` (B, N, 9), the clipped effective κ per calibration term;
     ``sigma_a`` (B, N), the attitude sigma (rad) the update of each epoch used;
     ``r_dof`` (B, N), ``û`` after each epoch.
     """
-    st = VbakfSettings.from_config(cfg)
+    st = cfg.adaptive.vbakf
     kf = new_filter(cfg, data)
     cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params

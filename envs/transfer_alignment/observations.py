@@ -22,7 +22,15 @@ agent sees).
 An observation object is stateful over the N episodes of a batch: ``reset(rows, kappa_pos)``
 starts episodes ``rows`` (returning their first observations), ``__call__(view)`` returns the
 observations (N, size) after one period. Register your own with
-``OBSERVATIONS.register(name, Observation(factory, size, description, needs_likelihood))``.
+``OBSERVATIONS.register(name, Observation(factory, size, description, needs_likelihood))``,
+``factory(cfg, n, period_s)`` building it for the scenario's config, n episodes and the
+decision period.
+
+The NIS alarm of v1 and v2 (a period's mean NIS per row above ``adaptive.alarm_burst.nis_alarm``)
+and v2's change clock (``quiet_s``) are those of the ``alarm-burst`` method: both come from
+:func:`qkf.transfer_alignment.alarms.change_clock` with the scenario's config, so that a changed
+setting (``--set adaptive.alarm_burst.nis_alarm=5``) changes the observation and the method
+alike.
 """
 
 from __future__ import annotations
@@ -33,13 +41,15 @@ from typing import Protocol
 
 import numpy as np
 
+from envs.common.bounds import OBS_LIMIT, finite_clipped
 from qkf.core.registry import Registry
-from qkf.transfer_alignment.alarms import NIS_ALARM, ChangeClock
+from qkf.transfer_alignment.alarms import change_clock
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import FilterRecord
 
-OBS_LIMIT = 100.0  # observations are clipped to ±this
-# NIS_ALARM (v1, v2: a period's mean NIS per row above it is an alarm) and QUIET_S (v2: calm
-# that separates two changes) live in qkf.transfer_alignment.alarms, shared with alarm-burst.
+# The alarm threshold (v1, v2: a period's mean NIS per row above it is an alarm) and the calm
+# that separates two changes (v2) are the config's adaptive.alarm_burst.nis_alarm and quiet_s,
+# read through qkf.transfer_alignment.alarms.change_clock as the alarm-burst method reads them.
 
 CUSUM_DRIFT = 1.0
 """v1: drift of the one-sided CUSUM ``S ← max(0, S + x − 1 − drift)`` of the period's mean
@@ -89,9 +99,10 @@ class ObservationState(Protocol):
 
 @dataclass(frozen=True)
 class Observation:
-    """An observation kind: ``factory(n, period_s)`` builds its state for a batch of n."""
+    """An observation kind: ``factory(cfg, n, period_s)`` builds its state for a batch of n
+    episodes of the scenario ``cfg`` with decision periods of ``period_s``."""
 
-    factory: Callable[[int, float], ObservationState]
+    factory: Callable[[Config, int, float], ObservationState]
     size: int
     description: str
     needs_likelihood: bool = False  # the κ = 1 shadow filter is run for the likelihood gain
@@ -99,12 +110,6 @@ class Observation:
 
 OBSERVATIONS: Registry[Observation] = Registry("observation", group="qkf.observations")
 """Observation kinds by name (``observation=`` of the environments)."""
-
-
-def finite_clipped(obs: np.ndarray) -> np.ndarray:
-    """NaN → 0, ±∞ → ±OBS_LIMIT, clipped to ±OBS_LIMIT, float32."""
-    obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
-    return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
 
 
 def masked_mean(x: np.ndarray, valid: np.ndarray, empty: float = 0.0) -> np.ndarray:
@@ -140,7 +145,7 @@ class ObservationV0:
 
     size = 9
 
-    def __init__(self, n: int, period_s: float) -> None:
+    def __init__(self, cfg: Config, n: int, period_s: float) -> None:
         self.n = n
 
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
@@ -186,8 +191,12 @@ class ObservationV1:
 
     size = 12
 
-    def __init__(self, n: int, period_s: float) -> None:
+    def __init__(self, cfg: Config, n: int, period_s: float) -> None:
         self.period_s = period_s
+        # the alarm (x > nis_alarm) and, for v2, the age of the change: the alarm-burst
+        # method's clock with the same configured settings
+        self.clock = change_clock(cfg, n)
+        self.alarm = np.zeros(n, dtype=bool)  # the last period's alarms (x > nis_alarm)
         self.cusum = np.zeros(n)
         self.window = np.ones((n, NIS_WINDOW))  # past periods' mean NIS per row, newest last
         self.since_alarm = np.zeros(n)  # s
@@ -213,7 +222,8 @@ class ObservationV1:
         x_all = np.where(np.isfinite(x_all), x_all, OBS_LIMIT)
         self.cusum = np.maximum(0.0, self.cusum + x_all - 1.0 - CUSUM_DRIFT)
         self.window = np.concatenate([self.window[:, 1:], x_all[:, None]], axis=1)
-        alarm = x_all > NIS_ALARM
+        alarm = self.clock.alarms(x_all)
+        self.alarm = alarm  # this period's alarms, for v2's change clock
         self.since_alarm = np.where(alarm, 0.0, self.since_alarm + period)
         rate = rate_deg_s(view)
         changed = np.linalg.norm(rate - self.last_rate, axis=1) > RATE_CHANGE_DEG_S
@@ -241,15 +251,11 @@ class ObservationV2(ObservationV1):
 
     ====  ======================================================================  ============
     12    ``log10(1 + a/10 s)``, a the age of the current change: time since the    0 … 3
-          first alarm after ≥ ``QUIET_S`` without one (``ONSET_CAP_S`` if none)
+          first alarm after ≥ ``quiet_s`` without one (``ONSET_CAP_S`` if none)
     ====  ======================================================================  ============
     """
 
     size = 13
-
-    def __init__(self, n: int, period_s: float) -> None:
-        super().__init__(n, period_s)
-        self.clock = ChangeClock(n)
 
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
         first = super().reset(rows, kappa_pos)
@@ -263,8 +269,7 @@ class ObservationV2(ObservationV1):
     def __call__(self, view: PeriodView) -> np.ndarray:
         obs = super().__call__(view)
         period = view.steps * view.dt
-        alarm = self.since_alarm == 0.0  # v1 restarted its clock: this period alarmed
-        age = self.clock.update(alarm, period)
+        age = self.clock.update(self.alarm, period)
         return finite_clipped(np.column_stack([obs, self._shown(age)]))
 
 

@@ -11,7 +11,8 @@ time on (the FDI's choice is not the agent's question). One step is one decision
 the calibrated epochs — fixed by the config (``env.unwrapped.episode_steps``).
 
 Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``), ``action_type``
-(``discrete`` | ``continuous``), ``reward`` (a name of :data:`GYRO_REWARDS`), ``overrides``
+(``discrete`` | ``continuous``), ``reward`` (a name of
+:data:`~envs.redundant_gyros.rewards.GYRO_REWARDS`), ``overrides``
 (``--set`` style), ``period_s``, ``render_mode`` (``None`` or ``"rgb_array"``, as the
 transfer-alignment environment: ``render()`` draws the κ chosen so far and, over the four
 calibrated states, the RMS of the UKF's σ and of the true error, both over the prior σ₀).
@@ -37,11 +38,8 @@ Obs    Meaning (float32; no truth)                                 Typical scale
 8      κ position in [0, 1] on the action scale                     0 … 1
 =====  ==========================================================  ===========================
 
-Rewards (:data:`GYRO_REWARDS`, entry-point group ``qkf.gyro_rewards``): ``likelihood``
-(default, no truth) ``(ℓ_agent − ℓ_nominal) / (steps Δt)`` with ``ℓ = −½ Σ (ν²/S + log S)``
-and the nominal filter a κ = 1 copy run from the same state over the period; ``oracle``
-(truth) minus the period's mean of ``‖(x̂ − x) / σ₀‖``; ``nees`` (truth) minus
-``|mean NEES / 4 − 1|``. ``info`` carries the true errors at the period's end in display units
+Rewards: :mod:`envs.redundant_gyros.rewards` (:data:`GYRO_REWARDS`, entry-point group
+``qkf.gyro_rewards``). ``info`` carries the true errors at the period's end in display units
 (``errors``: b deg/s, λ, δ_u deg, δ_v deg), ``kappa``, ``t_s``, ``gyro`` and ``diverged``. A
 filter that fails (non-finite, or a covariance that is not positive definite) ends the episode
 (``terminated=True``, reward −1000).
@@ -50,19 +48,16 @@ filter that fails (non-finite, or a covariance that is not positive definite) en
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
-from envs.episodes import ActionMap
-from envs.transfer_alignment import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
-from qkf.core.registry import Registry
-from qkf.core.stats import nees
+from envs.common.actions import ActionMap
+from envs.common.bounds import DIVERGENCE_REWARD, finite_clipped, observation_box
+from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
+from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod
 from qkf.redundant_gyros.config import GyrosConfig, load_config
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for
@@ -70,57 +65,9 @@ from qkf.redundant_gyros.scenario import epochs, simulate
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood, triad_rate
 
 OBS_SIZE = 9
-OBS_LIMIT = 100.0
-DIVERGENCE_REWARD = -1e3
+"""Entries of the observation (table above)."""
 GYRO_CURVES = ("UKF σ / σ₀", "|error| / σ₀")
 """The curves of the rendered frames: RMS over ``[b, λ, δ_u, δ_v]``, each over its prior sd."""
-
-
-@dataclass(frozen=True)
-class GyroPeriod:
-    """One decision period (internal units; P = the period's epochs inside the episode)."""
-
-    loglik_gain: float  # ℓ_agent − ℓ_nominal over the period
-    errors: np.ndarray  # (P, 4) x̂ − x
-    cov: np.ndarray  # (P, 4, 4)
-    prior_sd: np.ndarray  # (4,)
-    steps: int
-    dt: float
-
-
-@dataclass(frozen=True)
-class GyroReward:
-    fn: Callable[[GyroPeriod], float]
-    description: str
-    uses_truth: bool = False
-
-
-GYRO_REWARDS: Registry[GyroReward] = Registry("gyro reward", group="qkf.gyro_rewards")
-"""Rewards of ``qkf/RedundantGyroCalibration-v0`` by name."""
-
-
-def likelihood_reward(o: GyroPeriod) -> float:
-    """``(ℓ_agent − ℓ_nominal) / (steps Δt)``, per second."""
-    return o.loglik_gain / (o.steps * o.dt)
-
-
-def oracle_reward(o: GyroPeriod) -> float:
-    """Minus the period's mean of ``‖(x̂ − x) / σ₀‖``."""
-    return -float(np.mean(np.linalg.norm(o.errors / o.prior_sd, axis=1)))
-
-
-def nees_reward(o: GyroPeriod) -> float:
-    """Minus ``|mean NEES / 4 − 1|`` over the period."""
-    return -abs(float(np.mean(nees(o.errors, o.cov))) / 4.0 - 1.0)
-
-
-GYRO_REWARDS.register(
-    "likelihood", GyroReward(likelihood_reward, "innovation log-likelihood gain over κ = 1")
-)
-GYRO_REWARDS.register(
-    "oracle", GyroReward(oracle_reward, "minus the error over the prior sd", uses_truth=True)
-)
-GYRO_REWARDS.register("nees", GyroReward(nees_reward, "minus |NEES/4 − 1|", uses_truth=True))
 
 
 class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
@@ -160,9 +107,7 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         kappas = np.asarray(self.cfg.environment.actions.values())
         self.actions = ActionMap(kappas, action_type)
         self.action_space = self.actions.space
-        self.observation_space = spaces.Box(
-            -OBS_LIMIT, OBS_LIMIT, shape=(OBS_SIZE,), dtype=np.float32
-        )
+        self.observation_space = observation_box(OBS_SIZE)
         self._start_pos = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
         self._started = False
         self._trace = EpisodeTrace(
@@ -248,11 +193,7 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
             float(np.linalg.norm(self._rate[k1 - 1])),
             pos,
         ]
-        obs = np.clip(
-            np.nan_to_num(np.asarray(values), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT),
-            -OBS_LIMIT,
-            OBS_LIMIT,
-        ).astype(np.float32)
+        obs = finite_clipped(np.asarray(values))
         return obs, reward, False, k1 >= self.n_steps, info
 
     def _render_values(self, error: np.ndarray) -> list[float]:
@@ -271,6 +212,3 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8;
         ``None`` without a render mode."""
         return self._trace.frame() if self.render_mode is not None else None
-
-
-__all__ = ["GYRO_REWARDS", "GyroPeriod", "GyroReward", "RedundantGyroCalibrationEnv"]

@@ -4,14 +4,14 @@ A reward turns what happened over one decision period into one number per episod
 a :class:`PeriodOutcome` and returns an array (N,); non-finite values and diverged episodes are
 replaced by the divergence reward afterwards. Register your own with::
 
-    from envs.rewards import REWARDS, Reward
+    from envs import REWARDS, PeriodOutcome, Reward   # envs.transfer_alignment.rewards
 
     def calm(o: PeriodOutcome) -> np.ndarray:          # minus the mean attitude NIS
         return -o.period_mean(o.record.nis_att)
 
     REWARDS.register("calm", Reward(calm, "minus the mean attitude NIS"))
 
-then ``gym.make("qkf/TransferAlignment-v0", reward="calm")`` or ``reward: calm`` in a training
+then ``gym.make("qkf/TransferAlignment-v2", reward="calm")`` or ``reward: calm`` in a training
 config. Installed packages can add rewards through the entry-point group ``qkf.rewards``.
 
 Built in:

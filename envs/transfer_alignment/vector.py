@@ -1,7 +1,9 @@
-"""Batched vector version of ``qkf/TransferAlignment-v0``: N episodes stepped at once through one
-batched filter (not N environments in a loop). Gymnasium's ``VectorEnv`` API, next-step
-autoreset; sub-environment ``i`` of ``reset(seed=s)`` is the single environment reset with
-seed ``s + i``, step for step.
+"""The batched transfer-alignment environment: N episodes of ``qkf/TransferAlignment-v0``,
+``-v1`` or ``-v2`` stepped at once through one batched filter (not N environments in a loop),
+as Gymnasium's ``VectorEnv`` (next-step autoreset); what ``gym.make_vec`` returns for these ids.
+Sub-environment ``i`` of ``reset(seed=s)`` is the single environment reset with seed ``s + i``,
+step for step. Its Stable-Baselines3 twin, over the same batched episodes, is
+:class:`envs.transfer_alignment.sb3.BatchedTransferAlignmentSB3Env`.
 
 ``render_mode``: ``None`` (default) or ``"rgb_array"``; with the latter every sub-environment
 records its episode as the single environment does, and ``render()`` returns one frame per
@@ -19,19 +21,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver
-from envs.transfer_alignment import (
-    RENDER_FPS,
-    RENDER_MODES,
-    calibration_curves,
-    calibration_trace,
-    check_render_mode,
-)
+from envs.common.render import RENDER_FPS, RENDER_MODES, check_render_mode
+from envs.transfer_alignment.env import calibration_curves, calibration_trace
+from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver
 from qkf.transfer_alignment.config import Config
 
 
-class TransferAlignmentVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
-    """N transfer-alignment episodes in one batched filter."""
+class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
+    """N transfer-alignment episodes in one batched filter, as a Gymnasium ``VectorEnv``."""
 
     metadata = {  # noqa: RUF012 - Gymnasium's convention
         "autoreset_mode": AutoresetMode.NEXT_STEP,

@@ -22,7 +22,7 @@ from qkf.sca_fusion.design import (
     calibration_effect,
     linearize,
 )
-from qkf.sca_fusion.simulate import SimulatedData, simulate
+from qkf.sca_fusion.scenario import SimulatedData, simulate
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,12 @@
-"""Batched episodes of the transfer-alignment task: what every front end shares (the single and
-the vector Gymnasium environments, the SB3 ``VecEnv`` and the ``policy:`` benchmark method).
+"""Batched episodes of the transfer-alignment task: what every front end shares (the single
+environment, the batched Gymnasium vector environment, its Stable-Baselines3 adapter and the
+``policy:`` benchmark method).
 
 N episodes run in one :class:`~qkf.transfer_alignment.filter.TransferAlignmentKF` (plus its
 nominal κ = 1 shadow for the likelihood gain); each episode keeps its own epoch counter, so
 episodes that end early restart independently of the others. :class:`EpisodeDriver` adds the
-action map and one generator per episode. The observation and rewards are documented in
-docs/environment.md.
+action map (:class:`envs.common.ActionMap`) and one generator per episode. The observation and
+rewards are documented in docs/environment.md.
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from envs.observations import OBS_LIMIT, OBSERVATIONS, PeriodView
-from envs.rewards import REWARDS, PeriodOutcome
-from qkf.transfer_alignment.config import Config, load_config
+from envs.common.actions import ActionMap
+from envs.common.bounds import DIVERGENCE_REWARD, observation_box
+from envs.transfer_alignment.observations import OBSERVATIONS, PeriodView
+from envs.transfer_alignment.rewards import REWARDS, PeriodOutcome
+from qkf.transfer_alignment.config import Config, load_scenario
 from qkf.transfer_alignment.crlb import crlb
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import decision_steps
@@ -30,7 +33,6 @@ from qkf.transfer_alignment.params import FilterParams, n_epochs
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
-DIVERGENCE_REWARD = -1e3
 DEFAULT_PERIOD_S = 10.0
 """Decision period of the environments, s (one step = this much filtering)."""
 
@@ -70,7 +72,7 @@ class BatchedEpisodes:
         self.reward_kind = reward
         self.reward = REWARDS[reward]
         self.observation_kind = OBSERVATIONS[observation]
-        self.observation = self.observation_kind.factory(n, period_s)
+        self.observation = self.observation_kind.factory(cfg, n, period_s)
         self.needs_likelihood = (
             self.reward.needs_likelihood or self.observation_kind.needs_likelihood
         )
@@ -115,7 +117,7 @@ class BatchedEpisodes:
 
     def load(self, data: ScenarioData) -> np.ndarray:
         """Run the N episodes on given simulated data (N trials) instead of drawing them;
-        returns the first observations (N, 9)."""
+        returns the first observations (N, size)."""
         if data.n_trials != self.n or data.n_epochs != self.n_epochs:
             raise ValueError(f"data of {data.n_trials} trials × {data.n_epochs} epochs")
         self.gyro[:], self.ads_q[:], self.ads_rate[:] = data.gyro, data.ads_q, data.ads_rate
@@ -215,55 +217,14 @@ class BatchedEpisodes:
         )
 
 
-class ActionMap:
-    """Actions → κ, for both action types; invalid actions raise ``ValueError``."""
-
-    def __init__(self, kappas: np.ndarray, action_type: str) -> None:
-        if action_type not in ("discrete", "continuous"):
-            raise ValueError(f"action_type must be 'discrete' or 'continuous', not {action_type!r}")
-        self.kappas = kappas
-        self.log_kappa = np.log10(kappas)
-        self.action_type = action_type
-        self.space: spaces.Space[Any] = (
-            spaces.Discrete(kappas.size)
-            if action_type == "discrete"
-            else spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-        )
-
-    def __call__(self, action: Any) -> tuple[float, float]:
-        """κ and its position in [0, 1] on the action scale."""
-        if self.action_type == "discrete":
-            a = np.asarray(action)
-            v = a.reshape(-1)[0] if a.size == 1 else None
-            integral = v is not None and (
-                np.issubdtype(a.dtype, np.integer)
-                or (
-                    np.issubdtype(a.dtype, np.floating) and np.isfinite(v) and float(v).is_integer()
-                )
-            )
-            if not integral:
-                raise ValueError(f"discrete action must be an integer index, got {action!r}")
-            i = int(v)  # type: ignore[arg-type]
-            if not 0 <= i < self.kappas.size:
-                raise ValueError(f"action {i} outside 0..{self.kappas.size - 1}")
-            return float(self.kappas[i]), i / (self.kappas.size - 1)
-        a = np.asarray(action, dtype=float).reshape(-1)
-        if a.size != 1 or not np.isfinite(a[0]) or abs(a[0]) > 1.0 + 1e-6:
-            raise ValueError(
-                f"continuous action must be one finite value in [-1, 1], got {action!r}"
-            )
-        u = (float(np.clip(a[0], -1.0, 1.0)) + 1.0) / 2.0
-        lo, hi = self.log_kappa[0], self.log_kappa[-1]
-        return float(10.0 ** (lo + u * (hi - lo))), u
-
-
 class EpisodeDriver:
     """What the environment front ends share: the config, the action map, the batched episodes
     and one generator per episode (each episode's data is drawn from its own generator).
 
     ``scenario``: a preset name, a config path or a :class:`Config`; ``reward``: a name of
-    :data:`envs.rewards.REWARDS`; ``period_s``: the decision period, s; ``observation``: a name
-    of :data:`envs.observations.OBSERVATIONS` (the environment version).
+    :data:`~envs.transfer_alignment.rewards.REWARDS`; ``period_s``: the decision period, s;
+    ``observation``: a name of :data:`~envs.transfer_alignment.observations.OBSERVATIONS` (the
+    environment version).
     """
 
     def __init__(
@@ -285,11 +246,9 @@ class EpisodeDriver:
         if observation not in OBSERVATIONS:
             known = ", ".join(OBSERVATIONS.names())
             raise ValueError(f"unknown observation {observation!r}; known: {known}")
-        self.cfg = scenario if isinstance(scenario, Config) else load_config(scenario, overrides)
+        self.cfg = scenario if isinstance(scenario, Config) else load_scenario(scenario, overrides)
         self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
-        self.observation_space = spaces.Box(
-            -OBS_LIMIT, OBS_LIMIT, shape=(OBSERVATIONS[observation].size,), dtype=np.float32
-        )
+        self.observation_space: spaces.Box = observation_box(OBSERVATIONS[observation].size)
         self.core = BatchedEpisodes(self.cfg, n, reward, period_s, observation)
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
 

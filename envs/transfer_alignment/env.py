@@ -1,4 +1,4 @@
-r"""Gymnasium environment ``qkf/TransferAlignment-v0`` (docs/environment.md).
+r"""Gymnasium environments ``qkf/TransferAlignment-v0``, ``-v1``, ``-v2`` (docs/environment.md).
 
 One episode is one realisation of a scenario (truth and noise drawn from ``np_random`` at
 reset); one step is one decision period (``period_s``, 10 s by default) in which the
@@ -7,9 +7,12 @@ transfer-alignment filter runs with the process-noise factor κ the agent chose.
 environment truncates itself there, so ``gym.make`` and ``gym.make_vec`` agree for any duration.
 
 Arguments: ``scenario`` (preset name, config path or ``Config``), ``action_type``
-(``discrete`` | ``continuous``), ``reward`` (a name of :data:`envs.rewards.REWARDS`),
-``overrides`` (``--set`` style), ``period_s``, ``render_mode`` (``None`` or ``"rgb_array"``:
-:meth:`~TransferAlignmentEnv.render` returns a frame of the episode so far, below).
+(``discrete`` | ``continuous``), ``reward`` (a name of
+:data:`~envs.transfer_alignment.rewards.REWARDS`), ``overrides`` (``--set`` style),
+``period_s``, ``observation`` (``v0`` … ``v2``, a name of
+:data:`~envs.transfer_alignment.observations.OBSERVATIONS`, fixed by the registered id),
+``render_mode`` (``None`` or ``"rgb_array"``: :meth:`~TransferAlignmentEnv.render` returns a
+frame of the episode so far, below).
 
 =====================  ===================================================================
 Action                 Meaning
@@ -17,6 +20,8 @@ Action                 Meaning
 ``Discrete(A)``        index into the κ action set (default 11 values, 0.01 … 100)
 ``Box(-1, 1, (1,))``   ``action_type="continuous"``: linear in ``log10 κ`` over the set's range
 =====================  ===================================================================
+
+The observation of v0 (v1 and v2: :mod:`envs.transfer_alignment.observations`):
 
 =====  ==========================================================  ===========================
 Obs    Meaning (float32)                                           Typical scale
@@ -32,50 +37,34 @@ Obs    Meaning (float32)                                           Typical scale
 8      κ index scaled to [0, 1]                                     0 … 1
 =====  ==========================================================  ===========================
 
-Rewards: see :mod:`envs.rewards`. ``info`` carries the true errors at the end of the period in
-display units (``errors``: 15 values, the ``crlb.csv`` column order), the CRLB there
-(``crlb``), ``kappa``, ``t_s`` and ``diverged``. A filter that goes non-finite ends the episode
-(``terminated=True``).
+Rewards: see :mod:`envs.transfer_alignment.rewards`. ``info`` carries the true errors at the
+end of the period in display units (``errors``: 15 values, the ``crlb.csv`` column order), the
+CRLB there (``crlb``), ``kappa``, ``t_s`` and ``diverged``. A filter that goes non-finite ends
+the episode (``terminated=True``).
 
 Rendering: with ``render_mode="rgb_array"`` each step records four numbers (κ, and the RMS over
 the nine calibration terms of the filter's σ, of the true error and of the CRLB, ppm and µrad);
 ``render()`` draws them into a small RGB frame (``FRAME_HEIGHT_PX × FRAME_WIDTH_PX × 3`` uint8)
-and nothing is drawn in ``step``. ``render_mode=None`` (the default) records nothing and
-``render()`` returns ``None``. Stable-Baselines3's ``make_vec_env`` asks for ``"rgb_array"``.
+and nothing is drawn in ``step`` (:mod:`envs.common.render`). ``render_mode=None`` (the
+default) records nothing and ``render()`` returns ``None``. Stable-Baselines3's
+``make_vec_env`` asks for ``"rgb_array"``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 
-from envs.episodes import DEFAULT_PERIOD_S, EpisodeDriver, StepOutput
+from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
+from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver, StepOutput
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
-RENDER_MODES: tuple[str, ...] = ("rgb_array",)
-"""The render modes of the qkf environments besides ``None`` (Gymnasium's ``metadata``)."""
-RENDER_FPS = 10
-"""Frames per second of a recorded video (Gymnasium's ``metadata["render_fps"]``): one frame
-per decision period, so a 3600-s episode of 10-s periods plays in 36 s. A display rate, not a
-physical one."""
-FRAME_HEIGHT_PX = 240
-FRAME_WIDTH_PX = 320
-_FRAME_DPI = 80  # figure inches × dpi = pixels; small fonts stay legible at 320 × 240
 CALIBRATION = slice(6, 15)
 """The nine calibration states (scale factors, misalignments) in the 15-value error state."""
-
-
-def check_render_mode(render_mode: str | None) -> None:
-    """Accept ``None`` and the modes of :data:`RENDER_MODES`; anything else is a ``ValueError``
-    raised at construction, before any work is done."""
-    if render_mode is not None and render_mode not in RENDER_MODES:
-        modes = ", ".join(repr(m) for m in (None, *RENDER_MODES))
-        raise ValueError(f"render_mode {render_mode!r} is not supported; use one of {modes}")
 
 
 def calibration_rms(values: np.ndarray) -> np.ndarray:
@@ -83,88 +72,6 @@ def calibration_rms(values: np.ndarray) -> np.ndarray:
     µrad are both 1e-6, so the mixed RMS is meaningful in "ppm/µrad"."""
     with np.errstate(over="ignore", invalid="ignore"):  # a diverged filter: inf/NaN, drawn as gaps
         return np.sqrt(np.mean(np.square(values[..., CALIBRATION]), axis=-1))
-
-
-class EpisodeTrace:
-    """What ``render()`` draws: per step of the current episode, the time (s), the κ in use and
-    a few positive curves on one log axis. Appending is a few list appends (cheap enough for
-    every step); drawing happens only in :meth:`frame`.
-
-    ``curves``: the curve labels; ``ylabel``: their axis label; ``kappa_range``: the smallest and
-    largest κ of the action set (fixes the κ axis); ``time_range_s``: the start and end of the
-    episode, s (fixes the time axis, so the frames of one episode line up in a video).
-    """
-
-    def __init__(
-        self,
-        title: str,
-        curves: Sequence[str],
-        ylabel: str,
-        kappa_range: tuple[float, float],
-        time_range_s: tuple[float, float],
-    ) -> None:
-        self.title = title
-        self.labels = tuple(curves)
-        self.ylabel = ylabel
-        self.kappa_range = kappa_range
-        self.time_range_s = time_range_s
-        self.t_s: list[float] = []
-        self.kappa: list[float] = []
-        self.values: list[Sequence[float]] = []
-
-    def clear(self) -> None:
-        """Forget the episode (at reset)."""
-        self.t_s.clear()
-        self.kappa.clear()
-        self.values.clear()
-
-    def append(self, t_s: float, kappa: float, values: Sequence[float]) -> None:
-        """One step: the end of its period (s), its κ and one value per curve."""
-        self.t_s.append(float(t_s))
-        self.kappa.append(float(kappa))
-        self.values.append([float(v) for v in values])
-
-    def frame(self) -> np.ndarray:
-        """The episode so far as an RGB image, ``(FRAME_HEIGHT_PX, FRAME_WIDTH_PX, 3)`` uint8."""
-        # Imported here: importing the environments stays free of matplotlib. An Agg canvas of
-        # its own (no pyplot) leaves the process's backend and figure list alone.
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-        from matplotlib.ticker import NullFormatter
-
-        fig = Figure(
-            figsize=(FRAME_WIDTH_PX / _FRAME_DPI, FRAME_HEIGHT_PX / _FRAME_DPI),
-            dpi=_FRAME_DPI,
-        )
-        # fixed margins: a layout engine would cost more than the drawing itself
-        fig.subplots_adjust(left=0.17, right=0.97, bottom=0.14, top=0.92, hspace=0.12)
-        canvas = FigureCanvasAgg(fig)
-        ax_k, ax_v = fig.subplots(2, 1, sharex=True)
-        t = np.asarray(self.t_s)
-        lo, hi = self.kappa_range
-        t0, t1 = self.time_range_s
-        if t.size:  # κ holds over the period that ends at t: stairs over (t_prev, t], from t0
-            ax_k.stairs(self.kappa, np.concatenate([[t0], t]), color="C0", lw=1.0)
-        ax_k.set_yscale("log")
-        ax_k.set_ylim(lo / 2.0, hi * 2.0)
-        ax_k.set_ylabel("κ", fontsize=7)
-        ax_k.set_title(f"{self.title}  step {t.size}", fontsize=7)
-        values = np.asarray(self.values, dtype=float).reshape(t.size, len(self.labels))
-        for j, label in enumerate(self.labels):
-            ax_v.plot(t, values[:, j], lw=1.0, label=label, color=f"C{j + 1}")
-        positive = values[np.isfinite(values) & (values > 0.0)]
-        if positive.size:  # a log axis without positive data would warn; keep it linear then
-            ax_v.set_yscale("log")
-        ax_v.set_ylabel(self.ylabel, fontsize=7)
-        ax_v.set_xlabel("t [s]", fontsize=7)
-        ax_v.set_xlim(t0, max(t1, t0 + 1.0))  # an equal pair would make matplotlib warn
-        if t.size:
-            ax_v.legend(fontsize=6, loc="upper right")
-        for ax in (ax_k, ax_v):
-            ax.tick_params(labelsize=6)
-            ax.yaxis.set_minor_formatter(NullFormatter())  # log-axis minor labels only clutter
-        canvas.draw()
-        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):

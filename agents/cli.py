@@ -1,0 +1,266 @@
+"""``qkf train``, ``evaluate`` and ``zoo``: the agents' commands (docs/zoo.md). A Typer app mounted
+by :mod:`qkf.cli`. Only typer and ``qkf.core`` are imported here; the commands import the agents
+(and so torch) when they run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from qkf.core.cli_support import (
+    OverwriteOption,
+    SetOption,
+    fail,
+    out,
+    out_dir,
+    refused,
+    seed_option,
+)
+from qkf.core.config import ConfigError
+from qkf.transfer_alignment.config import MAX_TRIALS, check_workload, load_config
+
+if TYPE_CHECKING:  # the zoo is imported by its commands only (torch stays unloaded)
+    from agents.zoo import ZooEntry
+
+app = typer.Typer(add_completion=False, help="Train, evaluate and ship agents that choose κ.")
+
+
+@app.command("train")
+def train_cmd(
+    config: Annotated[
+        str, typer.Argument(help="Training config: a preset name (train_ppo) or a YAML path.")
+    ],
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = "results/train",
+    seed: Annotated[int | None, typer.Option(help="Seed (config: seed).")] = None,
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Go on from the newest checkpoint in --out although the config differs (only "
+            "total_steps, episodes, eval.every_steps, torch_threads may).",
+        ),
+    ] = False,
+    force_new: Annotated[
+        bool,
+        typer.Option(
+            "--force-new", help="Discard the run in --out (model, checkpoints, logs); start over."
+        ),
+    ] = False,
+) -> None:
+    """Train the agent named in the config; saves model.zip / model.npz, config.yaml,
+    training.json, checkpoints/, eval/, best/ and tb/.
+
+    A rerun into the same --out with the same config goes on from the newest checkpoint; with
+    another config it is refused (the differing fields are listed) unless --resume or
+    --force-new.
+    """
+    if resume and force_new:
+        raise fail("--resume and --force-new exclude each other")
+    seed_option(seed)
+    from agents.config import load_train_config, train_config_source
+    from agents.training import plan_training, run_training
+
+    sets = list(set_ or []) + ([f"seed={seed}"] if seed is not None else [])
+    try:
+        cfg = load_train_config(config, sets)
+        plan = plan_training(
+            cfg,
+            out_path,
+            resume=resume,
+            force_new=force_new,
+            source=train_config_source(config, sets),
+        )
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    for note in plan.notes:
+        out.print(note, soft_wrap=True, markup=False, highlight=False)
+    if plan.complete:
+        out.print(f"{plan.model_path} is up to date (--force-new retrains)")
+        return
+    try:
+        path = run_training(plan, progress=not quiet)
+    except ConfigError as exc:  # hyperparameter values the algorithm refuses; nothing written
+        raise fail(str(exc)) from None
+    out.print(f"wrote {path}")
+
+
+@app.command("evaluate")
+def evaluate_cmd(
+    model: Annotated[Path, typer.Argument(help="Saved agent: model.zip or model.npz.")],
+    scenario: Annotated[
+        str | None, typer.Option(help="Preset name or config path (default: the training one).")
+    ] = None,
+    trials: Annotated[int, typer.Option(help="Monte Carlo trials.")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the evaluation trials.")] = 12345,
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = "results/evaluate",
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    overwrite: OverwriteOption = False,
+) -> None:
+    """Filter Monte Carlo trials with the policy's κ; writes the files of ``qkf bench``."""
+    from agents.policy import Policy
+    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
+    from qkf.transfer_alignment.methods import resolve_method_settings
+    from qkf.transfer_alignment.report import write_bench
+
+    if model.is_dir():
+        raise fail(f"{model}: is a directory, not a model file (model.zip or model.npz)")
+    if not model.is_file():
+        raise fail(f"{model}: no such model file")
+    if not 1 <= trials <= MAX_TRIALS:
+        raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+    seed_option(seed)
+    try:
+        policy = Policy(model)
+        cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
+        named = parse_methods(f"policy:{model}")
+        cfg = resolve_method_settings(cfg, named, str(scenario or policy.cfg.scenario))
+    except (ConfigError, ValueError) as exc:
+        raise fail(str(exc)) from None
+    with refused(f"{scenario or policy.cfg.scenario}: "):
+        check_workload(cfg, trials)
+    folder = out_dir(out_path, "bench", overwrite)
+    res = run_benchmark(cfg, named, trials=trials, seed=seed, progress=not quiet)
+    write_bench(res, folder)
+    out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+
+
+zoo_app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="The zoo of trained policies (agents/zoo/<name>/): train, evaluate, promote, list.",
+)
+
+
+def _entry(name: str) -> ZooEntry:
+    from agents.zoo import load_entry
+
+    try:
+        return load_entry(name)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+
+
+WorkOption = Annotated[
+    str | None,
+    typer.Option(
+        "--work",
+        help="Work folder (checkpoints, logs, bench outputs, judged card): results/zoo/NAME.",
+    ),
+]
+
+
+def _work(work: str | None, entry: ZooEntry) -> Path:
+    """The zoo command's work folder, checked before any work (exit 2). It is the command's own
+    workspace: it writes only subfolders and files it names, each replaced only if it holds an
+    earlier run of its own kind."""
+    from qkf.core.io import OutputError, check_output_dir
+
+    try:
+        return check_output_dir(Path("results/zoo") / entry.name if work is None else work)
+    except OutputError as exc:
+        raise fail(f"--work: {exc}") from None
+
+
+@zoo_app.command("list")
+def zoo_list_cmd() -> None:
+    """The zoo's entries, with their shipped seed and description."""
+    from agents.zoo import list_entries
+
+    for e in list_entries():
+        chosen = e.selected_seed()
+        shipped = f"seed {chosen}" if chosen is not None else "not trained"
+        out.print(f"{e.name}: {shipped}; {e.spec.description}", soft_wrap=True, markup=False)
+
+
+@zoo_app.command("train")
+def zoo_train_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+    seeds: Annotated[
+        str | None, typer.Option(help="Comma-separated training seeds (default: zoo.yaml's).")
+    ] = None,
+    work: WorkOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Train every seed of the entry (a finished run is reused) and ship the best one."""
+    from agents.zoo.commands import train_entry
+
+    entry = _entry(name)
+    chosen_seeds = None
+    if seeds is not None:
+        parts = [s.strip() for s in seeds.split(",")]
+        if not any(parts):
+            raise fail("--seeds: an empty list; give seeds such as 0,1,2 (or leave it out)")
+        try:
+            chosen_seeds = [int(s) for s in parts]
+        except ValueError:
+            raise fail(f"--seeds: {seeds!r} is not a comma-separated list of integers") from None
+        if any(s < 0 for s in chosen_seeds):
+            raise fail("--seeds: seeds must be non-negative")
+        if len(set(chosen_seeds)) != len(chosen_seeds):
+            raise fail(f"--seeds: {seeds!r} names a seed twice")
+    folder = _work(work, entry)
+    try:
+        chosen = train_entry(entry, folder, chosen_seeds, not quiet, lambda m: out.print(m))
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    out.print(f"shipped seed {chosen}; wrote {entry.folder}/ (card.md)")
+
+
+@zoo_app.command("evaluate")
+def zoo_evaluate_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+    trials: Annotated[
+        int | None, typer.Option(help="Trials of every judging case (default: zoo.yaml's).")
+    ] = None,
+    work: WorkOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    update_entry: Annotated[
+        bool,
+        typer.Option(
+            "--update-entry",
+            help="Also rewrite the shipped entry's evaluation/ and card.md (agents/zoo/NAME).",
+        ),
+    ] = False,
+) -> None:
+    """Judge every trained seed against the baselines and the oracle on held-out benchmark
+    seeds; writes evaluation/ and card.md into --work (and, with --update-entry, into the
+    entry)."""
+    from agents.zoo.commands import evaluate_entry
+
+    entry = _entry(name)
+    if trials is not None and not 2 <= trials <= MAX_TRIALS:
+        raise fail(f"--trials must be between 2 and {MAX_TRIALS:,}")
+    if not entry.trained_seeds():
+        raise fail(f"{entry.folder}: no trained seed (run qkf zoo train {entry.name} first)")
+    folder = _work(work, entry)
+    try:
+        card = evaluate_entry(
+            entry, folder, trials, not quiet, lambda m: out.print(m), update_entry
+        )
+    except (ConfigError, FileNotFoundError) as exc:
+        raise fail(str(exc)) from None
+    out.print(card.read_text(), soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {card}" + (f" and {entry.folder}/card.md" if update_entry else ""))
+
+
+@zoo_app.command("promote")
+def zoo_promote_cmd(
+    name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
+) -> None:
+    """Copy the entry's shipped policy and card to agents/zoo/best/."""
+    from agents.zoo.commands import promote
+
+    try:
+        best = promote(_entry(name))
+    except FileNotFoundError as exc:
+        raise fail(str(exc)) from None
+    out.print(f"wrote {best}/")
+
+
+app.add_typer(zoo_app, name="zoo")

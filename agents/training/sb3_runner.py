@@ -1,0 +1,257 @@
+"""The Stable-Baselines3 runner: trains an SB3 algorithm on a plan (:mod:`.plan`), with SB3's own
+callbacks for what they do, and the project's records (:mod:`.records`) for what they do not.
+
+SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_steps.zip``,
+``EvalCallback`` evaluates on the held-out episodes, logs ``eval/mean_reward`` and
+``eval/mean_ep_length``, keeps ``eval/evaluations.npz`` and the best model, and a
+``CallbackList`` runs them in turn. The project adds:
+
+- *when* they run (:class:`BetweenUpdates`): between two updates, at the first rollout start at
+  or after every ``eval.every_steps`` steps, and at the end. A checkpoint saved there is a clean
+  point to resume from (the rollout buffer, which it does not hold, is empty);
+- atomic files: the callbacks write into staging folders, then every file is renamed into place
+  (:func:`~agents.training.records.publish_staged`), so an interrupted save never leaves a
+  truncated checkpoint for a resume to pick up;
+- held-out episodes that are the same at every evaluation
+  (:class:`~agents.training.records.HeldOutEpisodes`), the evaluations and best model of the run
+  a resume continues, ``best/best.json`` and ``training.json``;
+- reward scaling for the learner (:class:`~agents.common.vec_env.ScaledReward`) and a
+  deterministic resume (:func:`~agents.training.plan.resume_seed`).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import (
+    BaseCallback,
+    CallbackList,
+    CheckpointCallback,
+    EvalCallback,
+    EventCallback,
+)
+from stable_baselines3.common.vec_env import VecEnv
+
+from agents.algorithms import algorithm_class
+from agents.common.vec_env import ScaledReward, make_vec_env, monitored
+from agents.config import HEADER
+from agents.training.plan import TrainPlan, resume_seed
+from agents.training.records import (
+    BEST,
+    CHECKPOINTS,
+    EVALUATIONS,
+    EvaluationHistory,
+    HeldOutEpisodes,
+    RecordSchedule,
+    RunInfo,
+    begin_run,
+    checkpoint_progress,
+    evaluation_env,
+    fresh_staging,
+    publish_staged,
+    remove_staging,
+    write_best,
+)
+from qkf.core.config import ConfigError
+from qkf.core.io import atomic_write_bytes
+
+
+class BetweenUpdates(EventCallback):
+    """Fires its callback when the schedule says a record is due, between two updates of the
+    model (at a rollout start), and at the end of training.
+
+    Not SB3's ``EveryNTimesteps``, which fires after an environment step, inside a rollout: a
+    checkpoint taken there misses the half-collected rollout (checkpoints do not hold it), and
+    the evaluations would fall on other models than those of the runs trained so far (the
+    zoo's ``evaluations.npz``, from which its shipped seeds were chosen).
+    """
+
+    def __init__(self, schedule: RecordSchedule, callback: BaseCallback) -> None:
+        super().__init__(callback)
+        self.schedule = schedule
+
+    def _on_rollout_start(self) -> None:
+        if self.schedule.due(int(self.model.num_timesteps)):
+            self._fire()
+
+    def _on_training_end(self) -> None:
+        self._fire()
+
+    def _fire(self) -> None:
+        if self.schedule.take(int(self.model.num_timesteps)):
+            self._on_event()
+
+
+class AtomicCheckpoint(CheckpointCallback):
+    """SB3's ``CheckpointCallback`` (``model_<steps>_steps.zip``; ``save_freq=1``: a checkpoint
+    whenever it is called, :class:`BetweenUpdates` decides when), its file written into a
+    staging folder and then renamed into ``folder``."""
+
+    def __init__(self, folder: Path) -> None:
+        super().__init__(save_freq=1, save_path=str(fresh_staging(folder)), name_prefix="model")
+        self.folder = folder
+        self.last_saved: str | None = None  # the name of the newest checkpoint
+
+    def _on_step(self) -> bool:
+        go_on = super()._on_step()
+        for name in publish_staged(self.folder):
+            self.last_saved = name
+        return go_on
+
+
+class HeldOutEvaluation(EvalCallback):
+    """SB3's ``EvalCallback`` (``eval_freq=1``: an evaluation whenever it is called) on the
+    held-out episodes, continuing the evaluations and the best model of ``history``; its
+    ``evaluations.npz`` and ``best_model.zip`` written into staging folders, then renamed into
+    ``eval/`` and ``best/``, and ``best/best.json`` written beside a new best model."""
+
+    def __init__(
+        self,
+        out: Path,
+        env: HeldOutEpisodes,
+        history: EvaluationHistory,
+        checkpoint: AtomicCheckpoint,
+    ) -> None:
+        super().__init__(
+            env,
+            n_eval_episodes=env.num_envs,  # one episode per held-out seed
+            eval_freq=1,
+            log_path=str(fresh_staging(out / EVALUATIONS.parent)),
+            best_model_save_path=str(fresh_staging(out / BEST)),
+            deterministic=True,
+            verbose=0,
+            warn=False,  # the returns are summed by evaluate_policy, not read from a Monitor
+        )
+        self.out = out
+        self.checkpoint = checkpoint
+        self.evaluations_timesteps = list(history.timesteps)
+        self.evaluations_results = [r.tolist() for r in history.results]
+        self.evaluations_length = [n.tolist() for n in history.lengths]
+        self.best_mean_reward = history.best
+
+    def _init_callback(self) -> None:
+        with warnings.catch_warnings():
+            # SB3 compares the outermost wrappers only: the training env is the same
+            # environment under a monitor (and the learner's reward scale), the evaluation env
+            # under HeldOutEpisodes, on purpose
+            warnings.filterwarnings("ignore", message="Training and eval env are not of the same")
+            super()._init_callback()
+
+    def _on_step(self) -> bool:
+        best_before = self.best_mean_reward
+        go_on = super()._on_step()
+        publish_staged(self.out / EVALUATIONS.parent)
+        publish_staged(self.out / BEST)
+        if self.best_mean_reward > best_before:
+            write_best(
+                self.out,
+                self.num_timesteps,
+                self.best_mean_reward,
+                self.checkpoint.last_saved or "",
+            )
+        return go_on
+
+
+class RecordProgress(BaseCallback):
+    """``training.json`` after each record: the newest checkpoint and the steps trained."""
+
+    def __init__(self, info: RunInfo, checkpoint: AtomicCheckpoint) -> None:
+        super().__init__()
+        self.info = info
+        self.checkpoint = checkpoint
+
+    def _on_step(self) -> bool:
+        self.info.write(checkpoint=self.checkpoint.last_saved, num_timesteps=self.num_timesteps)
+        return True
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _build(plan: TrainPlan, algo: Any, env: VecEnv, seed: int) -> Any:
+    """The model of class ``algo``: loaded from the plan's checkpoint, or new;
+    ``ConfigError`` for hyperparameter values the algorithm refuses (nothing has been written
+    yet)."""
+    cfg, out = plan.cfg, plan.out
+    if plan.checkpoint is not None:
+        model = algo.load(plan.checkpoint, env=env, device="cpu", tensorboard_log=str(out / "tb"))
+        model.set_random_seed(seed)  # torch, numpy and the environments: a reproducible resume
+        return model
+    try:
+        return algo(
+            "MlpPolicy",
+            env,
+            seed=cfg.seed,
+            device="cpu",
+            tensorboard_log=str(out / "tb"),
+            **cfg.hyperparams,
+        )
+    except (TypeError, ValueError, AssertionError) as exc:
+        raise ConfigError(
+            f"{HEADER}\n  {plan.source}: hyperparams: {algo.__name__} refuses them: "
+            f"{_one_line(exc)}"
+        ) from None
+
+
+def run_sb3(plan: TrainPlan, progress: bool) -> Path:
+    """Train the plan's SB3 agent; returns the path of the saved model."""
+    cfg, out = plan.cfg, plan.out
+    algo = algorithm_class(cfg.agent)
+    seed = cfg.seed
+    if plan.checkpoint is not None:  # new episodes, drawn reproducibly from the progress made
+        seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, tabular=False))
+    env: VecEnv = monitored(make_vec_env(cfg, cfg.n_envs, seed))
+    if cfg.reward_scale != 1.0:
+        env = ScaledReward(env, cfg.reward_scale)
+    model = _build(plan, algo, env, seed)
+    start = int(model.num_timesteps)
+    resumed = plan.checkpoint is not None
+    info = RunInfo(out, plan.checkpoint)
+    history = EvaluationHistory.resumed(out, start) if resumed else EvaluationHistory()
+    held_out = evaluation_env(cfg)
+    begin_run(
+        plan,
+        info,
+        {
+            "agent": cfg.agent,
+            "algorithm": algo.__name__,
+            "total_steps_requested": plan.requested_steps,
+            "total_steps": cfg.total_steps,
+            "rounding": plan.rollout.describe() if plan.rollout is not None else None,
+            "num_timesteps": start,
+        },
+    )
+    checkpoint = AtomicCheckpoint(out / CHECKPOINTS)
+    records = CallbackList(
+        [
+            checkpoint,
+            HeldOutEvaluation(out, held_out, history, checkpoint),
+            RecordProgress(info, checkpoint),
+        ]
+    )
+    schedule = RecordSchedule(cfg.eval.every_steps, start, resumed)
+    started = time.perf_counter()
+    model.learn(
+        max(0, cfg.total_steps - start),
+        callback=BetweenUpdates(schedule, records),
+        progress_bar=progress,
+        reset_num_timesteps=not resumed,
+    )
+    buf = io.BytesIO()
+    model.save(buf)
+    atomic_write_bytes(out / "model.zip", buf.getvalue())
+    info.write(
+        num_timesteps=int(model.num_timesteps),
+        complete=True,
+        model="model.zip",
+        wall_s=round(time.perf_counter() - started, 1),  # this session's, on os.cpu_count() cores
+        cpu_count=os.cpu_count(),
+    )
+    remove_staging(out)
+    return out / "model.zip"

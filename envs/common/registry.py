@@ -1,0 +1,69 @@
+"""The environment registry: every qkf environment id with what training and the zoo need to
+know of it (docs/environment.md, "The environment registry").
+
+``envs.ENVIRONMENTS[id]`` is an :class:`Environment`: the reward registry the id's ``reward=``
+names, its observation version and size, the check of a ``scenario:`` (which problem's config
+loader reads it), its batched Gymnasium vector environment and Stable-Baselines3 adapter, if
+it has them. :func:`register_environment` puts an entry here and the id into Gymnasium's
+registry, so the two cannot disagree. ``qkf train`` looks the id of a training config up here
+and nowhere else; installed packages can add environments through the entry-point group
+``qkf.environments`` (an :class:`Environment`, whose Gymnasium id their package registers).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from gymnasium.envs.registration import register
+from gymnasium.envs.registration import registry as gym_registry
+
+from qkf.core.registry import Registry
+
+
+@dataclass(frozen=True)
+class Environment:
+    """One environment id and what its users need to know of it.
+
+    ``entry_point``, ``vector_entry_point``, ``sb3_vec_env``: ``"module:Class"`` (Gymnasium's
+    form; imported only when used, so the SB3 adapter costs no torch until it is asked for).
+    ``check_scenario(scenario, overrides)``: the problems of a ``scenario:`` with its
+    ``overrides``, one ``KEY: message`` line each (empty: it makes episodes).
+    """
+
+    id: str  # the Gymnasium id, "namespace/Name-vN"
+    entry_point: str  # the single environment (gymnasium.Env)
+    problem: str  # the qkf problem package of its scenarios ("transfer_alignment", …)
+    rewards: Registry[Any]  # its rewards: names for reward= and a training config's reward:
+    observation_size: int  # entries of its observation vector
+    check_scenario: Callable[[str, Sequence[str]], list[str]]
+    observation: str | None = None  # its observation version (observation= of the classes)
+    vector_entry_point: str | None = None  # its batched gymnasium.vector.VectorEnv, if any
+    sb3_vec_env: str | None = None  # its batched SB3 VecEnv adapter, if any
+    description: str = ""
+
+    @property
+    def kwargs(self) -> dict[str, Any]:
+        """The constructor arguments the id fixes (the observation version, if any)."""
+        return {} if self.observation is None else {"observation": self.observation}
+
+
+ENVIRONMENTS: Registry[Environment] = Registry("environment", group="qkf.environments")
+"""Environments by Gymnasium id (``env:`` of a training config)."""
+
+
+def register_environment(env: Environment) -> Environment:
+    """Add ``env`` to :data:`ENVIRONMENTS` and its id to Gymnasium's registry. No
+    ``max_episode_steps``: the environments truncate themselves at the end of the config's run,
+    so ``gym.make`` and ``gym.make_vec`` agree for any duration."""
+    ENVIRONMENTS.register(env.id, env)
+    if env.id not in gym_registry:  # a re-import (importlib.reload) registers nothing twice
+        register(
+            id=env.id,
+            entry_point=env.entry_point,
+            vector_entry_point=env.vector_entry_point,
+            max_episode_steps=None,
+            kwargs=env.kwargs,
+        )
+    return env

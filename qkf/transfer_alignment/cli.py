@@ -1,0 +1,372 @@
+"""``qkf crlb``, ``bench``, ``plot`` and ``study``: the transfer-alignment commands
+(docs/architecture.md, "Problem shape"). A Typer app mounted by :mod:`qkf.cli`; heavy imports
+happen inside the commands.
+
+Exit codes as everywhere: 0 success, 2 bad input (config, option: one message naming the file
+and the field; nothing written), 1 anything else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from qkf.core.cli_support import (
+    OverwriteOption,
+    SetOption,
+    fail,
+    out,
+    out_dir,
+    out_file,
+    refused,
+    seed_option,
+)
+from qkf.core.config import ConfigError
+from qkf.transfer_alignment.config import (
+    MAX_TRIALS,
+    STUDIES,
+    Config,
+    check_workload,
+    load_config,
+    load_scenario,
+)
+
+app = typer.Typer(add_completion=False, help="Transfer alignment: CRLB, benchmark, studies, plots.")
+
+ConfigArgument = Annotated[
+    str, typer.Argument(help="Scenario: a preset name (paper) or a YAML path.")
+]
+
+
+def _load(config: str, sets: list[str] | None) -> Config:
+    try:
+        return load_config(config, sets or [])
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+
+
+MATCHING = ("attitude", "attitude_rate")
+
+
+@app.command("crlb")
+def crlb_cmd(
+    config: ConfigArgument,
+    out_path: Annotated[str, typer.Option("--out", help="CSV file to write.")],
+    set_: SetOption = None,
+    matching: Annotated[
+        str | None, typer.Option(help="Override the matching scheme: attitude | attitude_rate.")
+    ] = None,
+) -> None:
+    """Posterior Cramér–Rao bound per epoch (1-σ, display units) as CSV."""
+    if matching is not None and matching not in MATCHING:
+        raise fail(f"--matching: {matching!r} is not {' or '.join(MATCHING)}")
+    sets = list(set_ or [])
+    if matching is not None:
+        sets.append(f"filter.matching={matching}")
+    with refused():  # no method runs: a user section under adaptive is an unknown key
+        cfg = load_scenario(config, sets)
+    from qkf.transfer_alignment.crlb import crlb
+    from qkf.transfer_alignment.report import write_crlb_csv
+    from qkf.transfer_alignment.states import STATE_COLUMNS
+
+    path = out_file(out_path, ",".join(("t_s", *STATE_COLUMNS)))
+
+    write_crlb_csv(path, crlb(cfg))
+    out.print(f"wrote {path}")
+
+
+@app.command("bench")
+def bench_cmd(
+    config: Annotated[
+        str | None,
+        typer.Argument(help="Scenario: a preset name (paper) or a YAML path."),
+    ] = None,
+    # A literal, not built from the registry: importing qkf.transfer_alignment.methods when the
+    # CLI starts loads numba and the filter (measured: `import qkf.cli` 0.6 s → 1.6 s, for every
+    # command). tests/test_words.py checks it against METHODS, BUILTIN_METHODS and
+    # METHOD_FACTORIES: keep the shape "'all' (default): …; named only: …; …".
+    methods: Annotated[
+        str | None,
+        typer.Option(
+            help="Comma-separated method specs, or 'all' (default): kf, kf-tuned, sage-husa, qkf, "
+            "mmae, imm, fading, vbakf, covariance-matching, batch; named only: oracle "
+            "(truth-tuned reference), alarm-burst (NIS-alarm schedule); policy:PATH (a saved "
+            "agent); package.module:function (your own); LABEL=SPEC."
+        ),
+    ] = None,
+    trials: Annotated[
+        int | None, typer.Option(help="Monte Carlo trials (config: run.trials).")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Seed (config: run.seed).")] = None,
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = "results/bench",
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    backend: Annotated[
+        str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
+    ] = "local",
+    workers: Annotated[
+        int | None, typer.Option(help="local backend: worker processes (config: run.workers).")
+    ] = None,
+    from_manifest: Annotated[
+        Path | None,
+        typer.Option(help="Rerun the run described by a run.json (config, methods, trials, seed)."),
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option(help="Sweeps: finish an interrupted sweep in --out.")
+    ] = False,
+    overwrite: OverwriteOption = False,
+) -> None:
+    """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots,
+    run.json. --out must be new, empty or (with --overwrite) an earlier bench run, which is
+    replaced whole when the run has finished.
+
+    A config with a ``sweep`` runs once per value into OUT/<key>=<value>/ and writes
+    OUT/sweep_summary.csv.
+    """
+    from qkf.core.io import OutputError
+    from qkf.core.montecarlo import BACKENDS
+    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
+    from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
+    from qkf.transfer_alignment.report import write_bench
+    from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
+
+    if (config is None) == (from_manifest is None):
+        raise fail("give a CONFIG or --from-manifest run.json (not both)")
+    if from_manifest is not None:
+        if set_ or methods is not None or trials is not None or seed is not None:
+            raise fail("--from-manifest takes the config, methods, trials and seed from it")
+        cfg, methods, trials, seed = _from_manifest(from_manifest)
+    else:
+        assert config is not None
+        cfg = _load(config, set_)
+    if trials is not None and not 1 <= trials <= MAX_TRIALS:
+        raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+    seed_option(seed)
+    with refused(f"{config if config is not None else from_manifest}: "):
+        check_workload(cfg, trials)
+    try:
+        named = parse_methods("all" if methods is None else methods)
+    except ValueError as exc:
+        raise fail(f"--methods: {exc}") from None
+    source = str(config if config is not None else from_manifest)
+    try:  # the methods' settings sections, the file named, before any work
+        cfg = resolve_method_settings(cfg, named, source)
+        cases = (
+            None
+            if cfg.sweep is None or config is None
+            else [
+                replace(c, cfg=resolve_method_settings(c.cfg, named, f"{source} ({c.label})"))
+                for c in sweep_cases(config, list(set_ or []), cfg)
+            ]
+        )
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    except ValueError as exc:  # a method's malformed settings declaration
+        raise fail(f"--methods: {exc}") from None
+    if backend not in BACKENDS:
+        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
+    if workers is not None and workers < 1:
+        raise fail("--workers must be at least 1")
+    if cfg.sweep is None:
+        if resume:
+            raise fail("--resume is for sweeps; a run replaces --out whole (--overwrite)")
+        folder = out_dir(out_path, "bench", overwrite)
+    else:
+        folder = Path(out_path)  # the sweep's folder: checked by run_sweep (prepare_output)
+    bench = {"progress": not quiet, "backend": backend, "workers": workers}
+
+    def show(folder: Path) -> None:
+        # raw markdown, unwrapped: a narrow terminal must not truncate the numbers
+        text = (folder / "summary.md").read_text()
+        out.print(text, soft_wrap=True, markup=False, highlight=False)
+        out.print(f"wrote {folder}/")
+
+    try:
+        if cfg.sweep is None:
+            res = run_benchmark(cfg, named, trials, seed, **bench)  # type: ignore[arg-type]
+            write_bench(res, folder)
+            show(folder)
+            return
+        key = cfg.sweep.key
+        assert cases is not None
+
+        def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+            out.print(f"[bold]{key} = {case.label}[/]" + (" (finished earlier)" if reused else ""))
+            show(folder)
+
+        summary = run_sweep(
+            cases, key, named, folder, trials, seed, resume, overwrite, on_case, **bench
+        )
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise fail(str(exc)) from None
+    out.print(f"wrote {summary}")
+
+
+def _from_manifest(path: Path) -> tuple[Config, str, int, int]:
+    from qkf.core.config import validate
+    from qkf.core.manifest import read_manifest
+
+    try:
+        info = read_manifest(path, "bench")
+        cfg = validate(Config, info["config"], f"{path}: config")
+        specs = [m.get("spec") for m in info.get("methods", [])]
+        if not specs or any(not isinstance(sp, str) for sp in specs):
+            raise ConfigError(f"{path}: methods: a method was passed as an object, not a spec")
+        return cfg, ",".join(specs), int(info["trials"]), int(info["seed"])
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise fail(str(exc)) from None
+        raise fail(f"{path}: not a usable manifest ({exc!r})") from None
+
+
+@app.command("plot")
+def plot_cmd(
+    folder: Annotated[
+        Path, typer.Argument(help="A finished qkf bench folder, or a sweep's or a study's.")
+    ],
+) -> None:
+    """Redraw every figure of a finished run from its CSV files and run.json (a study: each
+    case's figures and study.png); nothing is rerun."""
+    import os
+    import tempfile
+
+    from qkf.transfer_alignment.report import redraw_bench
+    from qkf.transfer_alignment.study import redraw_study
+
+    if folder.is_file():
+        raise fail(f"{folder}: is a file, not a results folder")
+    if not folder.is_dir():
+        raise fail(f"{folder}: no such folder")
+    study = (folder / "study.csv").is_file()
+    targets = (
+        [folder]
+        if (folder / "rms.csv").is_file()
+        else sorted(p.parent for p in folder.glob("*/rms.csv"))
+    )
+    if not targets and not study:
+        raise fail(f"{folder}: no qkf bench results (rms.csv) here or one level below")
+    # every folder a figure goes into must take a new file, checked before reading anything
+    # (a probe file, created and removed: permission bits say nothing for root or a read-only
+    # mount)
+    for target in dict.fromkeys([folder, *targets]):
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".qkf-probe.", dir=target)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError:
+            raise fail(f"{folder}: no permission to write in {target}") from None
+    try:
+        if study:
+            written = redraw_study(folder)
+        else:
+            written = redraw_bench(*targets)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    for path in written:
+        out.print(f"wrote {path}")
+
+
+@app.command("study")
+def study_cmd(
+    study: Annotated[str, typer.Argument(help="Study: a preset name (matching) or a YAML path.")],
+    out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = "results/study",
+    trials: Annotated[
+        int | None, typer.Option(help="Monte Carlo trials of every case (study: trials).")
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Override a config value of every case, after the case's own: "
+            "dotted.key=value (YAML value).",
+        ),
+    ] = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    resume: Annotated[
+        bool, typer.Option(help="Finish an interrupted study in --out (finished cases kept).")
+    ] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
+) -> None:
+    """Run the cases of a study and plot them together: case folders, study.csv, study.png,
+    run.json. With --resume, a case folder is kept only if it was run with the same config
+    (--set included), methods, trials and seed."""
+    from rich.markup import escape
+
+    from qkf.core import presets
+    from qkf.core.config import read_yaml_mapping
+    from qkf.core.io import OutputError
+    from qkf.transfer_alignment.config import check_workload
+    from qkf.transfer_alignment.methods import MethodOutputError
+    from qkf.transfer_alignment.study import CaseRun, load_study, prepare_output, run_study
+
+    try:
+        unknown = presets.missing(study, STUDIES, "study")
+        if unknown is not None:
+            raise unknown
+        kind = read_yaml_mapping(presets.resolve(study, STUDIES), "study").get("kind")
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    if kind == "claims":
+        if trials is not None or set_:
+            raise fail(
+                "--trials and --set are not for a claims study: its trials and configs are "
+                "part of each claim's evidence (edit a copy of the study file instead)"
+            )
+        _claims(study, out_path, quiet, overwrite)
+        return
+    if trials is not None and not 1 <= trials <= MAX_TRIALS:
+        raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+    try:
+        spec, configs = load_study(study, list(set_ or []))
+        if spec.kind == "crlb" and trials is not None:
+            raise fail(f"--trials: {study} is a CRLB study; it runs no trials")
+        for i, (case, cfg) in enumerate(zip(spec.cases, configs, strict=True)):
+            if spec.kind == "bench":
+                try:
+                    check_workload(cfg, spec.trials if trials is None else trials)
+                except ConfigError as exc:
+                    raise ConfigError(f"{study}: cases.{i} ({case.label}): {exc}") from None
+        prepare_output(out_path, resume, overwrite)
+    except (ConfigError, OutputError) as exc:
+        raise fail(str(exc)) from None
+
+    def on_start(i: int, n: int, case: CaseRun) -> None:
+        out.print(f"[bold]case {i}/{n}:[/] {escape(case.label)}", highlight=False)
+
+    def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+        out.print(
+            f"{escape(case.label)}: {'finished earlier, kept' if reused else 'done'} "
+            f"({escape(str(folder))}/)",
+            highlight=False,
+        )
+
+    try:
+        written = run_study(
+            study, out_path, not quiet, resume, overwrite, on_case,
+            trials=trials, sets=list(set_ or []), on_start=on_start,
+        )  # fmt: skip
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise fail(str(exc)) from None
+    out.print(f"wrote {len(written)} entries under {out_path}/ (study.csv, study.png, run.json)")
+
+
+def _claims(study: str, out_path: str | Path, quiet: bool, overwrite: bool = False) -> None:
+    from qkf.core.io import OutputError
+    from qkf.transfer_alignment.claims import load_claims, run_claims
+    from qkf.transfer_alignment.methods import MethodOutputError
+
+    try:
+        load_claims(study)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    folder = out_dir(out_path, "claims", overwrite)
+    try:
+        run_claims(study, folder, progress=not quiet)
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise fail(str(exc)) from None
+    text = (folder / "claims.md").read_text()
+    out.print(text, soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {folder}/ (claims.csv, claims.md, one benchmark folder per config)")
