@@ -5,6 +5,7 @@ against the fixed-schedule filter (docs/methods.md, "Alarm burst")."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from envs.transfer_alignment.episodes import BatchedEpisodes
 from envs.transfer_alignment.observations import TIME_SCALE_S
@@ -23,6 +24,7 @@ def test_nis_per_row_by_hand() -> None:
     np.testing.assert_allclose(nis_per_row(nis, 6), [1.5, 1.0, 0.5])
 
 
+@pytest.mark.slow  # whole 3600 s runs through the method and the environment
 def test_kappa_trace_matches_the_v2_rule_and_the_schedule_filter() -> None:
     cfg = load_config("thermal_snap_random")
     data = simulate(cfg, 3, 4)

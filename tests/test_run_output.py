@@ -171,6 +171,7 @@ def kf_failing_at_10s(cfg, data):  # type: ignore[no-untyped-def]
     return METHODS["kf"](cfg, data)
 
 
+@pytest.mark.slow  # three study runs (failed, refused, resumed)
 def test_an_interrupted_study_resumes_without_recomputing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -252,6 +252,7 @@ def _case_manifest(out: Path, case: str) -> dict[str, Any]:
     return json.loads((out / case / "run.json").read_text())
 
 
+@pytest.mark.slow  # four study runs (resumed and rerun)
 def test_study_trials_and_set_are_used_recorded_and_resumed(tmp_path: Path) -> None:
     cases = (
         "cases:\n  - {label: short, set: [scenario.duration_s=20]}\n"

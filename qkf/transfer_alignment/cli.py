@@ -85,8 +85,8 @@ def bench_cmd(
         typer.Argument(help="Scenario: a preset name (paper) or a YAML path."),
     ] = None,
     # A literal, not built from the registry: importing qkf.transfer_alignment.methods when the
-    # CLI starts loads numba and the filter (measured: `import qkf.cli` 0.6 s → 1.6 s, for every
-    # command). tests/test_words.py checks it against METHODS, BUILTIN_METHODS and
+    # CLI starts loads numba and the filter (measured: `import qkf.cli` 0.2 s → 0.7 s, for every
+    # command, --help included). tests/test_words.py checks it against METHODS, BUILTIN_METHODS and
     # METHOD_FACTORIES: keep the shape "'all' (default): …; named only: …; …".
     methods: Annotated[
         str | None,
