@@ -17,7 +17,11 @@ another distribution) need not be in this project's README.
 from __future__ import annotations
 
 import fnmatch
+import functools
+import json
 import re
+import subprocess
+import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
@@ -49,6 +53,34 @@ def _own_names(registry: Registry[Any]) -> list[str]:
             if ep.value.split(":")[0].split(".")[0] not in PROJECT_MODULES:
                 foreign.add(ep.name)
     return [name for name in registry.names() if name not in foreign]
+
+
+@functools.cache
+def _registered() -> dict[str, list[str]]:
+    """The project's own registered names, read in a fresh interpreter: other tests of this
+    process register examples of their own (the docs' recipes add rewards and methods), which
+    must not count as the project's."""
+    code = """
+import json
+import envs
+from agents.algorithms import ALGORITHMS
+from qkf.transfer_alignment.methods import BUILTIN_METHODS, METHOD_FACTORIES, METHODS
+from tests.test_words import _own_names
+envs_ = envs.ENVIRONMENTS
+rewards = {n for e in _own_names(envs_) for n in _own_names(envs_[e].rewards)}
+print(json.dumps({
+    "methods": _own_names(METHODS),
+    "builtin": list(BUILTIN_METHODS),
+    "factories": _own_names(METHOD_FACTORIES),
+    "rewards": sorted(rewards | set(_own_names(envs.REWARDS))),
+    "algorithms": _own_names(ALGORITHMS),
+}))
+"""
+    res = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
+    names: dict[str, list[str]] = json.loads(res.stdout.strip().splitlines()[-1])
+    return names
 
 
 def _section(text: str, heading: str) -> str:
@@ -110,9 +142,9 @@ def _missing(names: list[str], where: str) -> list[str]:
 @pytest.fixture(scope="module")
 def methods() -> tuple[list[str], list[str], list[str]]:
     """(every method name, those ``all`` runs, the factories), the project's own."""
-    from qkf.transfer_alignment.methods import BUILTIN_METHODS, METHOD_FACTORIES, METHODS
 
-    return _own_names(METHODS), list(BUILTIN_METHODS), _own_names(METHOD_FACTORIES)
+    reg = _registered()
+    return reg["methods"], reg["builtin"], reg["factories"]
 
 
 def test_readme_methods_table_is_the_registry(
@@ -167,7 +199,7 @@ def test_methods_doc_config_keys_cover_every_setting() -> None:
         prefix = spans[0].rpartition(".")[0]
         documented.update([spans[0], *(f"{prefix}.{s}" for s in spans[1:])])
     declared: set[str] = set()
-    for name in _own_names(METHODS):
+    for name in _registered()["methods"]:
         settings = declared_settings(METHODS[name])
         if settings is not None:
             section, model = settings
@@ -225,24 +257,18 @@ def test_every_environment_id_is_documented() -> None:
 def test_every_reward_is_in_the_environment_doc() -> None:
     """Every reward of every environment (``envs.ENVIRONMENTS[id].rewards``; for the transfer
     alignment ``envs.REWARDS``) is a row of a table under "Rewards" in docs/environment.md."""
-    import envs
 
-    rewards = {
-        name
-        for env_id in _own_names(envs.ENVIRONMENTS)
-        for name in _own_names(envs.ENVIRONMENTS[env_id].rewards)
-    } | set(_own_names(envs.REWARDS))
+    rewards = set(_registered()["rewards"])
     section = _section(_read(DOCS / "environment.md"), "## Rewards")
     listed = {_quoted(row[0])[0] for row in _table_rows(section) if _quoted(row[0])}
     assert sorted(rewards - listed) == []
 
 
 def test_every_algorithm_is_documented() -> None:
-    from agents.algorithms import ALGORITHMS
 
     words = _read(README) + _docs_text()
     quoted = set(_quoted(words))
-    assert [a for a in _own_names(ALGORITHMS) if a not in quoted] == []
+    assert [a for a in _registered()["algorithms"] if a not in quoted] == []
 
 
 # --- presets, paths and modules ---------------------------------------------------------------
