@@ -37,6 +37,21 @@ OverwriteOption = Annotated[
 ]
 
 
+BackendOption = Annotated[
+    str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
+]
+
+
+def backend_options(backend: str, workers: int | None) -> None:
+    """Refuse an unknown ``--backend`` or ``--workers`` below 1 (exit 2) before any work."""
+    from qkf.core.montecarlo import BACKENDS
+
+    if backend not in BACKENDS:
+        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
+    if workers is not None and workers < 1:
+        raise fail("--workers must be at least 1")
+
+
 def fail(msg: str, code: int = 2) -> typer.Exit:
     """Print ``error: msg`` to stderr and return the ``typer.Exit`` to raise (exit 2: bad input)."""
     # soft_wrap: a message must not be broken at the terminal width (file paths, fields)

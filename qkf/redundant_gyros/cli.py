@@ -14,8 +14,10 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from qkf.core.cli_support import (
+    BackendOption,
     OverwriteOption,
     SetOption,
+    backend_options,
     fail,
     out,
     out_dir,
@@ -131,9 +133,7 @@ def bench_cmd(
     seed: Annotated[int | None, typer.Option(help="Seed (bench.seed).")] = None,
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-    backend: Annotated[
-        str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
-    ] = "local",
+    backend: BackendOption = "local",
     workers: Annotated[
         int | None,
         typer.Option(help="local backend: worker processes (config: bench.workers)."),
@@ -143,7 +143,6 @@ def bench_cmd(
     """Three-cross vs GLT over fault kinds and sizes (σ units) with bootstrap intervals, and the
     UKF's accuracy and NEES over trials: bench.csv, ukf.csv, summary.md, bench.png, ukf.png,
     run.json. Every backend gives the same numbers."""
-    from qkf.core.montecarlo import BACKENDS
     from qkf.redundant_gyros.config import MAX_TRIALS
 
     cfg = _load(config, set_)
@@ -157,10 +156,7 @@ def bench_cmd(
     except ConfigError as exc:
         raise fail(f"{config}: {exc}") from None
     # the same checks and messages as qkf bench, before the output folder is touched
-    if backend not in BACKENDS:
-        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
-    if workers is not None and workers < 1:
-        raise fail("--workers must be at least 1")
+    backend_options(backend, workers)
     folder = out_dir(out_path, "gyros-bench", overwrite)
     _report_separability(cfg)
     from qkf.redundant_gyros.benchmark import run_bench

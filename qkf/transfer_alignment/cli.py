@@ -15,8 +15,10 @@ from typing import Annotated
 import typer
 
 from qkf.core.cli_support import (
+    BackendOption,
     OverwriteOption,
     SetOption,
+    backend_options,
     fail,
     out,
     out_dir,
@@ -104,9 +106,7 @@ def bench_cmd(
     out_path: Annotated[str, typer.Option("--out", help="Output directory.")] = "results/bench",
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-    backend: Annotated[
-        str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
-    ] = "local",
+    backend: BackendOption = "local",
     workers: Annotated[
         int | None, typer.Option(help="local backend: worker processes (config: run.workers).")
     ] = None,
@@ -127,7 +127,6 @@ def bench_cmd(
     OUT/sweep_summary.csv.
     """
     from qkf.core.io import OutputError
-    from qkf.core.montecarlo import BACKENDS
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
     from qkf.transfer_alignment.report import write_bench
@@ -166,10 +165,7 @@ def bench_cmd(
         raise fail(str(exc)) from None
     except ValueError as exc:  # a method's malformed settings declaration
         raise fail(f"--methods: {exc}") from None
-    if backend not in BACKENDS:
-        raise fail(f"--backend: {backend!r} is not {' or '.join(BACKENDS)}")
-    if workers is not None and workers < 1:
-        raise fail("--workers must be at least 1")
+    backend_options(backend, workers)
     if cfg.sweep is None:
         if resume:
             raise fail("--resume is for sweeps; a run replaces --out whole (--overwrite)")
