@@ -9,13 +9,29 @@ import pytest
 
 from envs.transfer_alignment.episodes import BatchedEpisodes
 from envs.transfer_alignment.observations import TIME_SCALE_S
-from qkf.transfer_alignment.config import load_config
+from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.methods import BUILTIN_METHODS, METHODS
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule, nis_per_row
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, run_schedule
-from qkf.transfer_alignment.scenario import simulate
+from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
 SCHEDULE = OracleSchedule(base=2.5, after=100.0, window_s=50.0)
+
+
+def v2_rule_kappa(
+    cfg: Config, data: ScenarioData, schedule: OracleSchedule = SCHEDULE
+) -> np.ndarray:
+    """κ per epoch of the alarm-burst rule acting on the environment's v2 observation (entry 12,
+    the change's age): κ_after while the change is younger than the window, else κ_base."""
+    core = BatchedEpisodes(cfg, data.n_trials, "oracle", 10.0, observation="v2")
+    obs = core.load(data)
+    below = np.log10(1.0 + schedule.window_s / TIME_SCALE_S) - 1e-6
+    trace = []
+    for _ in range(0, data.n_epochs, core.period):
+        kappa = np.where(obs[:, 12] < below, schedule.after, schedule.base)
+        trace.append(kappa)
+        obs = core.step(kappa, np.zeros(data.n_trials)).obs
+    return np.repeat(np.stack(trace, axis=1), core.period, axis=1)[:, : data.n_epochs]
 
 
 def test_nis_per_row_by_hand() -> None:
@@ -31,15 +47,7 @@ def test_kappa_trace_matches_the_v2_rule_and_the_schedule_filter() -> None:
     out = AlarmBurstSchedule(SCHEDULE)(cfg, data)
     assert out.kappa is not None
     # the same rule acting on the environment's v2 observation (entry 12, the change's age)
-    core = BatchedEpisodes(cfg, data.n_trials, "oracle", 10.0, observation="v2")
-    obs = core.load(data)
-    below = np.log10(1.0 + SCHEDULE.window_s / TIME_SCALE_S) - 1e-6
-    trace = []
-    for _ in range(0, data.n_epochs, core.period):
-        kappa = np.where(obs[:, 12] < below, SCHEDULE.after, SCHEDULE.base)
-        trace.append(kappa)
-        obs = core.step(kappa, np.zeros(data.n_trials)).obs
-    env_kappa = np.repeat(np.stack(trace, axis=1), core.period, axis=1)[:, : data.n_epochs]
+    env_kappa = v2_rule_kappa(cfg, data)
     np.testing.assert_array_equal(out.kappa, env_kappa)
     assert data.jump_t is not None
     for row in range(data.n_trials):

@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.transfer_alignment.episodes import BatchedEpisodes
 from envs.transfer_alignment.observations import TIME_SCALE_S, ObservationV1, ObservationV2
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule
 from qkf.transfer_alignment.methods.oracle import OracleSchedule
 from qkf.transfer_alignment.scenario import simulate
+from tests.test_alarm_burst import v2_rule_kappa
 from tests.test_env_v1 import _view
 
 SCHEDULE = OracleSchedule(base=2.5, after=100.0, window_s=50.0)
@@ -29,16 +29,7 @@ def _v2_rule_kappa(cfg_sets: list[str]) -> tuple[np.ndarray, np.ndarray]:
     data = simulate(cfg, SEED, TRIALS)
     method = AlarmBurstSchedule(SCHEDULE)(cfg, data).kappa
     assert method is not None
-    core = BatchedEpisodes(cfg, data.n_trials, "oracle", 10.0, observation="v2")
-    obs = core.load(data)
-    below = np.log10(1.0 + SCHEDULE.window_s / TIME_SCALE_S) - 1e-6
-    trace = []
-    for _ in range(0, data.n_epochs, core.period):
-        kappa = np.where(obs[:, 12] < below, SCHEDULE.after, SCHEDULE.base)
-        trace.append(kappa)
-        obs = core.step(kappa, np.zeros(data.n_trials)).obs
-    env = np.repeat(np.stack(trace, axis=1), core.period, axis=1)[:, : data.n_epochs]
-    return method, env
+    return method, v2_rule_kappa(cfg, data, SCHEDULE)
 
 
 @pytest.mark.parametrize(
