@@ -131,9 +131,13 @@ def test_randomized_family_draws_events_per_trial() -> None:
     assert any(np.any(j < 0) for j in jumps) and any(np.any(j > 0) for j in jumps)
     rates = np.linalg.norm(d.omega_true, axis=-1)  # rotation schedules differ per trial
     assert not np.array_equal(rates[0] > 0.1 * units.DEG_PER_S, rates[1] > 0.1 * units.DEG_PER_S)
-    # the noise streams other than the events are those of the fixed family
+    # the noise streams other than the events are those of the fixed family (the truth too,
+    # once the family's randomized truth is switched off)
     fixed = simulate(load_config("thermal_snap", ["scenario.duration_s=3000"]), 4, [0, 1, 2])
-    np.testing.assert_array_equal(fixed.bias, d.bias)
+    same_truth = ["scenario.duration_s=3000", "scenario.randomize_truth=false"]
+    np.testing.assert_array_equal(
+        fixed.bias, simulate(load_config("thermal_snap_random", same_truth), 4, [0, 1, 2]).bias
+    )
 
 
 def test_randomized_drift_family() -> None:

@@ -91,6 +91,10 @@ class LogUniform(StrictModel):
         return self
 
 
+MAX_RANDOM_JUMPS = 4
+"""Upper bound on ``random_events.jump.count``."""
+
+
 class RandomManeuvers(StrictModel):
     """The calibration rotation sequence, drawn per trial: one rotation about each body axis,
     back to back from its start, in random order (``shuffle_axes``), each with its own rate and
@@ -102,17 +106,43 @@ class RandomManeuvers(StrictModel):
 
 
 class RandomJump(StrictModel):
-    """A calibration jump drawn per trial (it replaces ``calibration_jumps``): its time, and per
-    term a magnitude (and a random sign, if ``random_sign``). With ``rotations_after``, a second
-    rotation sequence starts at the jump, drawn as ``random_events.maneuvers`` (without those,
-    an x, y, z sequence at 1 deg/s, 100 s each, after the fixed ``maneuvers``: list only the
-    first sequence there)."""
+    """Calibration jumps drawn per trial (they replace ``calibration_jumps``): ``count`` jump
+    times in ``t_s``, at least ``min_separation_s`` apart, and per jump and term a magnitude
+    (and a random sign, if ``random_sign``). With ``rotations_after``, a rotation sequence
+    starts at each jump, drawn as ``random_events.maneuvers`` (without those, an x, y, z
+    sequence at 1 deg/s, 100 s each, after the fixed ``maneuvers``: list only the first
+    sequence there).
+
+    The times: with ``J = count``, ``d = min_separation_s`` and ``t_s = U[a, b]``, draw
+    ``u_1 … u_J`` i.i.d. ``U[a, b − (J − 1) d]``, sort them and set ``t_i = u_(i) + (i − 1) d``.
+    The shift is a one-to-one, volume-preserving map from ordered tuples onto the allowed
+    region ``{a ≤ t_1, t_i + d ≤ t_(i+1), t_J ≤ b}``, so the times are uniform on it (what
+    i.i.d. uniform times rejected until their gaps reach ``d`` would give, at a fixed cost of
+    ``J`` draws). For ``J = 2``, with ``L = b − a − d``: ``(t_1 − a)/L ~ Beta(1, 2)``,
+    ``(t_2 − a − d)/L ~ Beta(2, 1)`` and ``(t_2 − t_1 − d)/L ~ Beta(1, 2)``.
+    """
 
     t_s: Uniform
     misalignment_urad: Uniform = Uniform(low=0.0, high=0.0)
     scale_factor_ppm: Uniform = Uniform(low=0.0, high=0.0)
     random_sign: bool = True
     rotations_after: bool = True
+    count: Annotated[int, Field(ge=1, le=MAX_RANDOM_JUMPS)] = 1
+    min_separation_s: NonNegativeFloat = 0.0
+
+    @model_validator(mode="after")
+    def _fits(self) -> RandomJump:
+        # the allowed region must have a positive volume (else the times are not uniform on
+        # anything): (count − 1) separations strictly inside the range, as long as there are two
+        span = self.t_s.high - self.t_s.low
+        need = (self.count - 1) * self.min_separation_s
+        if self.count > 1 and need >= span:
+            raise ValueError(
+                f"min_separation_s: {self.count} jumps (count) at least "
+                f"{self.min_separation_s:g} s apart need a t_s range longer than {need:g} s; "
+                f"t_s spans {span:g} s"
+            )
+        return self
 
 
 class RandomDrift(StrictModel):
@@ -125,14 +155,67 @@ class RandomDrift(StrictModel):
     sigma_per_sqrt_s: LogUniform
 
 
-class RandomEvents(StrictModel):
-    """Events drawn per trial (randomized scenario families, docs/models.md): each part, if
-    given, replaces its fixed counterpart (``maneuvers``; ``calibration_jumps``; a segment of
-    ``calibration_walk``) in every trial, drawn from the trial's own stream."""
+class RandomEventParts(StrictModel):
+    """The parts a trial's events are drawn from; each part, if given, replaces its fixed
+    counterpart in the trial (``maneuvers``; ``calibration_jumps``; the segments of
+    ``calibration_walk``; ``ads.attitude_sigma_arcsec``). Draw order: :class:`RandomEvents`."""
 
     maneuvers: RandomManeuvers | None = None
     jump: RandomJump | None = None
     drift: RandomDrift | None = None
+    ads_attitude_sigma_arcsec: Uniform | None = None  # the true ADS attitude noise, arcsec
+
+    @model_validator(mode="after")
+    def _positive_sigma(self) -> RandomEventParts:
+        ads = self.ads_attitude_sigma_arcsec
+        if ads is not None and ads.low <= 0.0:
+            raise ValueError("ads_attitude_sigma_arcsec: low must be positive (a noise σ)")
+        return self
+
+    def parts(self) -> list[str]:
+        """Names of the parts given."""
+        return [name for name in RandomEventParts.model_fields if getattr(self, name) is not None]
+
+
+class MixtureComponent(StrictModel):
+    """One family of a mixture: its name (reports, :func:`~..scenario.family_names`) and its
+    events (no mixture inside)."""
+
+    name: Annotated[str, Field(min_length=1)]
+    events: RandomEventParts
+
+
+class RandomEvents(RandomEventParts):
+    """Events drawn per trial (randomized scenario families, docs/models.md, "Scenario
+    families"), from the trial's own ``events`` stream.
+
+    Draw order, fixed so that adding a part never moves the draws of the parts before it:
+    the mixture component (``mixture`` only: uniform over its entries), then the drift (start,
+    length, log-intensity), the rotation sequence (axis order, then rate and duration per
+    axis), the jumps (every time first; then per jump in time order: 9 signs, 3 scale factors,
+    6 misalignments and its rotation sequence), the ADS attitude σ. (The drift leads because
+    ``thermal_drift_random`` gained its rotation draws after its transient: every (seed, trial)
+    keeps the transient it had.)
+
+    ``mixture``: each trial first draws one component uniformly, then that component's events;
+    it stands alone (the parts go inside the components).
+    """
+
+    mixture: Annotated[list[MixtureComponent], Field(min_length=1)] | None = None
+
+    @model_validator(mode="after")
+    def _mixture_alone(self) -> RandomEvents:
+        if self.mixture is None:
+            return self
+        if self.parts():
+            raise ValueError(
+                f"mixture: cannot stand next to {', '.join(self.parts())} (move them into the "
+                "mixture's components)"
+            )
+        names = [c.name for c in self.mixture]
+        if len(set(names)) != len(names):
+            raise ValueError("mixture: component names must be unique")
+        return self
 
 
 class GyroNoise(StrictModel):
@@ -322,11 +405,83 @@ class CovarianceMatchingConfig(StrictModel):
     r_floor: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1  # σ̂_a ≥ r_floor · assumed σ_a
 
 
+TUNING_SEEDS = (1_000_000, 2_000_000)
+"""Benchmark seeds ``[low, high)`` reserved for tuning with the truth (docs/environment.md,
+"Seed ranges"): ``adaptive.tuned.seed`` lies here, and a run judged on such a seed has no
+tuning seeds left (its tuned methods would be judged on the trials they were tuned on)."""
+
+JudgedMetric = Literal["state_settled", "ma_urad_settled", "sf_ppm_settled", "calibration_settled"]
+"""Criteria the truth-tuned methods can be tuned for (settled window, RMS over tuning trials);
+``state_settled`` is the whole-state metric (docs/methods.md, "Judging")."""
+
+
 class TunedConfig(StrictModel):
-    """The oracle constant-κ KF: κ chosen with the truth on separate tuning seeds."""
+    """Tuning with the truth on separate tuning seeds: the constant-κ KF (``kf-tuned``), the
+    ``clock``, and the seeds and criterion every truth-tuned method shares."""
 
     trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 8
-    seed: Annotated[int, Field(ge=0)] = 1_000_003
+    seed: Annotated[int, Field(ge=TUNING_SEEDS[0], lt=TUNING_SEEDS[1])] = 1_000_003
+    metric: JudgedMetric = "state_settled"
+
+
+class OptunaConfig(StrictModel):
+    """Hyperparameter tuning of the classical methods' ``-tuned`` variants with Optuna (TPE):
+    ``evaluations`` settings, each run on ``adaptive.tuned.trials`` trials of the tuning seed,
+    scored by ``adaptive.tuned.metric``; results are cached per scenario, seed and budget."""
+
+    evaluations: Annotated[int, Field(ge=1, le=100_000)] = 50
+    sampler_seed: Annotated[int, Field(ge=0)] = 0
+
+
+class GlrConfig(StrictModel):
+    """Change detection on the innovations with a CUSUM of the log-likelihood ratio, and a
+    reset of the calibration block of P on alarm (docs/methods.md, "GLR reset").
+
+    ``threshold`` h: with no change the statistic drifts down and the mean time between false
+    alarms grows like e^h; over 64 ``paper`` trials of 3600 s the largest value a trial reached
+    was 11.7 (median 6.3), while each of 64 ``thermal_snap_random`` jumps took it past h at the
+    first measurement after the jump. ``quiet_s`` keeps a later alarm of the same change (the
+    next rotation axis) from re-opening P again.
+    """
+
+    inflation: Annotated[float, Field(gt=1.0, le=1e6)] = 4.0  # λ: S under a change is λ S
+    threshold: PositiveFloat = 15.0  # h: alarm when the CUSUM statistic exceeds it
+    reset_ppm: PositiveFloat = 300.0  # calibration σ added (in quadrature) on alarm, ppm/µrad
+    quiet_s: NonNegativeFloat = 300.0  # no second reset this soon after one
+    kappa: PositiveFloat = 1.0  # the filter's constant κ
+
+
+class HindsightConfig(StrictModel):
+    """The per-trial best κ schedule with the truth known (docs/methods.md, "Hindsight"):
+    piecewise constant per decision period over the action set, found by coordinate descent
+    over blocks of decreasing length (``blocks_s``, each a multiple of ``period_s``).
+
+    ``focus_s``: a block length shorter than it is tried only within ``focus_s`` of a switch
+    of the trial's schedule (where the κ changes), as the longer lengths left it; ``null``
+    tries every block at every length (about four times the cost with the default blocks).
+    """
+
+    period_s: PositiveFloat = 10.0  # the agents' decision period
+    blocks_s: list[PositiveFloat] = Field(default=[400.0, 200.0, 100.0, 50.0, 20.0], min_length=1)
+    passes: Annotated[int, Field(ge=1, le=100)] = 1  # sweeps per block length
+    focus_s: PositiveFloat | None = 100.0
+
+    @model_validator(mode="after")
+    def _whole_periods(self) -> HindsightConfig:
+        for block in self.blocks_s:
+            if abs(block / self.period_s - round(block / self.period_s)) > 1e-6 or (
+                block < self.period_s
+            ):
+                raise ValueError(f"blocks_s: {block:g} s is not a multiple of period_s")
+        return self
+
+
+class ClockConfig(StrictModel):
+    """The best open-loop κ(t) (docs/methods.md, "Clock"): piecewise constant on blocks of
+    ``block_s``, tuned with the truth on the tuning seeds by coordinate descent."""
+
+    block_s: PositiveFloat = 300.0
+    passes: Annotated[int, Field(ge=1, le=100)] = 3
 
 
 class OracleConfig(StrictModel):
@@ -334,9 +489,7 @@ class OracleConfig(StrictModel):
     window after each trial's true jump time; all chosen with the truth on tuning seeds."""
 
     windows_s: list[PositiveFloat] = Field(default=[50.0, 100.0, 200.0, 400.0, 800.0], min_length=1)
-    metric: Literal["ma_urad_settled", "sf_ppm_settled", "calibration_settled"] = (
-        "calibration_settled"
-    )
+    metric: JudgedMetric = "state_settled"
 
 
 class AlarmBurstConfig(StrictModel):
@@ -409,6 +562,10 @@ class AdaptiveConfig(StrictModel):
     covariance_matching: CovarianceMatchingConfig = CovarianceMatchingConfig()
     oracle: OracleConfig = OracleConfig()
     alarm_burst: AlarmBurstConfig = AlarmBurstConfig()
+    optuna: OptunaConfig = OptunaConfig()
+    glr: GlrConfig = GlrConfig()
+    hindsight: HindsightConfig = HindsightConfig()
+    clock: ClockConfig = ClockConfig()
 
 
 class Sweep(StrictModel):

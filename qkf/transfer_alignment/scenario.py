@@ -9,6 +9,10 @@ Per epoch ``t_k = k Δt`` (k = 0 … N−1)::
     ω̃_k   = (I + K(p_k)) ω_k + b_k + N(0, σ_v²/Δt)       (gyro, rad/s)
     C_ADS,k = C_k Exp(N(0, σ_a² I)),   ω_ADS,k = ω_k + N(0, σ_r² I)
 
+A randomized family (``scenario.random_events``) draws each trial's manoeuvres, jumps, drift
+transient and true σ_a (:func:`draw_events`), or first one family of a mixture
+(:func:`draw_trial`); docs/models.md, "Scenario families".
+
 Randomness: trial ``i`` of a run with seed ``s`` draws from
 ``numpy.random.SeedSequence([s, i])``, split into one child stream per noise source, so a trial
 is reproducible on its own (whatever the batch it is simulated in) and changing one source
@@ -29,6 +33,9 @@ from qkf.transfer_alignment.config import (
     CalibrationJump,
     Config,
     Maneuver,
+    RandomEventParts,
+    RandomEvents,
+    RandomJump,
     RandomManeuvers,
     Scenario,
     WalkSegment,
@@ -62,6 +69,13 @@ class ScenarioData:
     trial_ids: np.ndarray  # (B,) the trial index each row was drawn for
     seed: int = 0  # the run's seed: with trial_ids, what methods seed their own draws from
     jump_t: np.ndarray | None = None  # (B,) s, each trial's first calibration jump (NaN: none)
+    # (B, J) s, every calibration jump of each trial in time order, NaN-padded (J ≥ 1, so
+    # jumps_t[:, 0] is jump_t)
+    jumps_t: np.ndarray | None = None
+    family: np.ndarray | None = None  # (B,) int, mixture component per trial (family_names)
+    # (B,) rad, each trial's true ADS attitude σ_a, when the family draws it (else None: the
+    # scenario's ads.attitude_sigma_arcsec in every trial)
+    ads_sigma_rad: np.ndarray | None = None
 
     @property
     def n_trials(self) -> int:
@@ -126,6 +140,37 @@ def first_jump_s(sc: Scenario) -> float:
     return min((j.t_s for j in sc.calibration_jumps), default=float("nan"))
 
 
+def jump_times(sc: Scenario) -> list[float]:
+    """Times of the scenario's calibration jumps in increasing order, s."""
+    return sorted(j.t_s for j in sc.calibration_jumps)
+
+
+def family_names(cfg: Config) -> tuple[str, ...]:
+    """Names of the mixture's components, in the order of ``ScenarioData.family``'s indices
+    (empty without a mixture)."""
+    ev = cfg.scenario.random_events
+    return () if ev is None or ev.mixture is None else tuple(c.name for c in ev.mixture)
+
+
+def component_scenario(sc: Scenario, index: int) -> Scenario:
+    """The scenario of component ``index`` of ``sc``'s mixture: ``sc`` with that component's
+    events as its ``random_events`` (what a trial that drew the component draws from)."""
+    ev = sc.random_events
+    if ev is None or ev.mixture is None:
+        raise ValueError("the scenario has no mixture of families")
+    events = RandomEvents.model_validate(ev.mixture[index].events.model_dump())
+    return sc.model_copy(update={"random_events": events})
+
+
+def _draws_ads_sigma(sc: Scenario) -> bool:
+    """Whether some trial of the scenario draws its own ADS attitude σ."""
+    ev = sc.random_events
+    if ev is None:
+        return False
+    parts: list[RandomEventParts] = [ev] if ev.mixture is None else [c.events for c in ev.mixture]
+    return any(p.ads_attitude_sigma_arcsec is not None for p in parts)
+
+
 def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> list[Maneuver]:
     axes: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
     if spec.shuffle_axes:
@@ -139,33 +184,21 @@ def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> 
     return out
 
 
-def draw_events(sc: Scenario, rng: np.random.Generator) -> Scenario:
-    """The scenario of one trial of a randomized family: ``sc`` with the events of
-    ``sc.random_events`` drawn from ``rng`` (always in the same order: manoeuvres, jump, drift,
-    so a trial's draws do not depend on which parts are configured after them)."""
-    ev = sc.random_events
-    if ev is None:
-        return sc
+def _jump_times(j: RandomJump, rng: np.random.Generator) -> np.ndarray:
+    """``count`` sorted jump times, s, at least ``min_separation_s`` apart: uniform on the
+    allowed region (the construction is in :class:`~..config.RandomJump`). With one jump it is
+    one ``U[low, high]`` draw, as it has always been."""
+    shift = np.arange(j.count) * j.min_separation_s
+    u = rng.uniform(j.t_s.low, j.t_s.high - shift[-1], j.count)
+    return np.sort(u) + shift
+
+
+def _draw_parts(sc: Scenario, ev: RandomEventParts, rng: np.random.Generator) -> Scenario:
+    """``sc`` with the parts of ``ev`` drawn from ``rng``, in the documented order (drift,
+    manoeuvres, jumps, ADS σ; :class:`~..config.RandomEvents`): a new part draws after the
+    existing ones, so a family's draws never move when a later part is added to it."""
     update: dict[str, object] = {"random_events": None}
     maneuvers = list(sc.maneuvers)
-    if ev.maneuvers is not None:
-        maneuvers = _sequence(0.0, ev.maneuvers, rng)
-    if ev.jump is not None:
-        j = ev.jump
-        t_jump = rng.uniform(j.t_s.low, j.t_s.high)
-        sign = rng.choice([-1.0, 1.0], size=9) if j.random_sign else np.ones(9)
-        sf = rng.uniform(j.scale_factor_ppm.low, j.scale_factor_ppm.high, 3) * sign[:3]
-        ma = rng.uniform(j.misalignment_urad.low, j.misalignment_urad.high, 6) * sign[3:]
-        update["calibration_jumps"] = [
-            CalibrationJump(
-                t_s=t_jump,
-                scale_factor_ppm=tuple(float(v) for v in sf),  # type: ignore[arg-type]
-                misalignment_urad=tuple(float(v) for v in ma),  # type: ignore[arg-type]
-            )
-        ]
-        if j.rotations_after:
-            again = ev.maneuvers or RandomManeuvers(shuffle_axes=False)
-            maneuvers += _sequence(t_jump, again, rng)
     if ev.drift is not None:
         d = ev.drift
         start = rng.uniform(d.start_s.low, d.start_s.high)
@@ -175,8 +208,52 @@ def draw_events(sc: Scenario, rng: np.random.Generator) -> Scenario:
             start_s=start, end_s=start + length, sigma_per_sqrt_s=float(np.exp(log_sigma))
         )
         update["calibration_walk"] = sc.calibration_walk.model_copy(update={"segments": [segment]})
+    if ev.maneuvers is not None:
+        maneuvers = _sequence(0.0, ev.maneuvers, rng)
+    if ev.jump is not None:
+        j = ev.jump
+        again = ev.maneuvers or RandomManeuvers(shuffle_axes=False)
+        jumps = []
+        for t_jump in _jump_times(j, rng).tolist():
+            sign = rng.choice([-1.0, 1.0], size=9) if j.random_sign else np.ones(9)
+            sf = rng.uniform(j.scale_factor_ppm.low, j.scale_factor_ppm.high, 3) * sign[:3]
+            ma = rng.uniform(j.misalignment_urad.low, j.misalignment_urad.high, 6) * sign[3:]
+            jumps.append(
+                CalibrationJump(
+                    t_s=t_jump,
+                    scale_factor_ppm=tuple(float(v) for v in sf),  # type: ignore[arg-type]
+                    misalignment_urad=tuple(float(v) for v in ma),  # type: ignore[arg-type]
+                )
+            )
+            if j.rotations_after:
+                maneuvers += _sequence(t_jump, again, rng)
+        update["calibration_jumps"] = jumps
+    if ev.ads_attitude_sigma_arcsec is not None:
+        a = ev.ads_attitude_sigma_arcsec
+        sigma = float(rng.uniform(a.low, a.high))
+        update["ads"] = sc.ads.model_copy(update={"attitude_sigma_arcsec": sigma})
     update["maneuvers"] = maneuvers
     return sc.model_copy(update=update)
+
+
+def draw_trial(sc: Scenario, rng: np.random.Generator) -> tuple[Scenario, int | None]:
+    """The scenario of one trial of a randomized family, and the index of the mixture
+    component it drew (None without a mixture): with a mixture, one component uniformly, then
+    its events (:func:`component_scenario`); else the events of ``sc.random_events``."""
+    ev = sc.random_events
+    if ev is None:
+        return sc, None
+    if ev.mixture is None:
+        return _draw_parts(sc, ev, rng), None
+    family = int(rng.integers(len(ev.mixture)))
+    return _draw_parts(sc, ev.mixture[family].events, rng), family
+
+
+def draw_events(sc: Scenario, rng: np.random.Generator) -> Scenario:
+    """The scenario of one trial of a randomized family: ``sc`` with the events of
+    ``sc.random_events`` drawn from ``rng`` (:func:`draw_trial` without the component index).
+    ``sc`` itself when nothing is drawn."""
+    return draw_trial(sc, rng)[0]
 
 
 def true_attitude(omega: np.ndarray, dt: float) -> np.ndarray:
@@ -207,6 +284,10 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     walk_sigma = calibration_walk_sigma(sc)
     jumps = calibration_jumps(sc)
     jump_t = np.full(b, first_jump_s(sc))
+    trial_jumps = [jump_times(sc)] * b
+    sigma_a = np.full(b, tp.sigma_a)  # the true ADS attitude σ per trial, rad
+    mixture = random and sc.random_events is not None and sc.random_events.mixture is not None
+    family = np.full(b, -1, dtype=int) if mixture else None
     if random:  # per-trial schedules
         omega_b, q_b = np.empty((b, n, 3)), np.empty((b, n, 4))
         walk_b, jumps_b = np.empty((b, n)), np.empty((b, n, 9))
@@ -219,7 +300,12 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     for row, trial in enumerate(ids):
         g = trial_streams(seed, int(trial))
         if random:
-            sc_trial = draw_events(sc, g["events"])
+            sc_trial, drawn_family = draw_trial(sc, g["events"])
+            if family is not None and drawn_family is not None:
+                family[row] = drawn_family
+            trial_jumps[row] = jump_times(sc_trial)
+            # same arithmetic as TruthParams: a family that draws no σ_a keeps it bit for bit
+            sigma_a[row] = sc_trial.ads.attitude_sigma_arcsec * units.ARCSEC
             omega_b[row] = true_rates(sc_trial)
             q_b[row] = true_attitude(omega_b[row], dt)
             walk_b[row] = calibration_walk_sigma(sc_trial)
@@ -240,7 +326,7 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         np.cumsum(dp, axis=0, out=calib[row, 1:])
         calib[row, 1:] += p0
         eta_v[row] = g["gyro"].normal(0.0, tp.sigma_v / np.sqrt(dt), (n, 3))
-        nu_a[row] = g["ads_attitude"].normal(0.0, tp.sigma_a, (n, 3))
+        nu_a[row] = g["ads_attitude"].normal(0.0, sigma_a[row], (n, 3))
         nu_r[row] = g["ads_rate"].normal(0.0, tp.sigma_r, (n, 3))
     if random:
         calib += jumps_b
@@ -252,6 +338,9 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         omega_all = np.broadcast_to(omega, (b, n, 3))
         q_all = np.broadcast_to(q_true, (b, n, 4))
     gyro = omega_all + kw + bias + eta_v
+    jumps_t = np.full((b, max(1, *map(len, trial_jumps))), np.nan)
+    for row, times in enumerate(trial_jumps):
+        jumps_t[row, : len(times)] = times
     ads_q = (
         Rotation.from_quat(q_all.reshape(-1, 4)) * Rotation.from_rotvec(nu_a.reshape(-1, 3))
     ).as_quat()
@@ -269,4 +358,7 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         trial_ids=ids,
         seed=seed,
         jump_t=jump_t,
+        jumps_t=jumps_t,
+        family=family,
+        ads_sigma_rad=sigma_a if _draws_ads_sigma(sc) else None,
     )
