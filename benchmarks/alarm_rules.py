@@ -40,7 +40,7 @@ Rule = Callable[[np.ndarray], np.ndarray]  # observation (B, size) → κ (B,)
 def settled_ms(cfg: Config, data: ScenarioData, est: np.ndarray) -> np.ndarray:
     """Per-trial settled mean square of the misalignment error, µrad² (B,)."""
     err = state_errors(est, data.q_true, data.bias, data.calib)
-    ms = trial_mean_squares(err, data.t, cfg.run.settled_s)
+    ms = trial_mean_squares(err, data.t, cfg.run.settled_s, np.ones(err.shape[-1]))
     return ms[:, METRIC_COLUMNS.index("ma_urad_settled")] / 1e-12
 
 

@@ -65,3 +65,18 @@ def _no_command_deletes_a_file_it_did_not_write() -> Iterator[None]:
             pytest.fail(f"the suite deleted {gone} and rewrote {touched}", pytrace=False)
     finally:
         sentinel.unlink(missing_ok=True)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Tuned methods cache their results under ``$QKF_CACHE_DIR``: the suite's own cache, so
+    that no test reads a user's cached tuning or writes into their home."""
+    import os
+
+    before = os.environ.get("QKF_CACHE_DIR")
+    os.environ["QKF_CACHE_DIR"] = str(tmp_path_factory.mktemp("qkf_cache"))
+    yield
+    if before is None:
+        os.environ.pop("QKF_CACHE_DIR", None)
+    else:
+        os.environ["QKF_CACHE_DIR"] = before

@@ -42,7 +42,7 @@ class JudgeCase(StrictModel):
     overrides: list[str] = Field(default_factory=list)  # --set style, of the scenario
     seed: Annotated[int, Field(ge=0)] = 7000
     trials: Annotated[int, Field(ge=2)] = 64
-    metric: str = "ma_urad_settled"
+    metric: str = "state_settled"
     baselines: list[str] = Field(default_factory=lambda: ["kf", "kf-tuned"])
     oracle: bool = True  # also run the truth-tuned oracle schedule (the upper reference)
 

@@ -17,6 +17,7 @@ from functools import partial
 
 import numpy as np
 
+from qkf.core.config import ConfigError
 from qkf.core.montecarlo import ProgressBar, chunk_ids, progress_bar, run_chunks
 from qkf.core.stats import (
     ErrorAccumulator,
@@ -27,8 +28,9 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     BUILTIN_METHODS,
     MethodSpecError,
@@ -109,6 +111,20 @@ def parse_methods(spec: str | list[str]) -> list[NamedMethod]:
     return _unique([resolve_method(m) for m in names])
 
 
+def refuse_tuning_seed(methods: list[NamedMethod], seed: int) -> None:
+    """Refuse to judge methods that tune on the tuning seeds (they have a ``prepare``: kf-tuned,
+    the oracle, the clock, the ``-tuned`` baselines …) on a seed of that range: they would be
+    judged on the trials they were tuned on (docs/environment.md, "Seed ranges")."""
+    low, high = TUNING_SEEDS
+    tuned = [m.name for m in methods if callable(getattr(m.method, "prepare", None))]
+    if tuned and low <= seed < high:
+        raise ConfigError(
+            f"seed {seed} is a tuning seed ([{low:,}, {high:,})): {', '.join(tuned)} tune on "
+            "those seeds, so no tuning seeds are left to judge them apart from; choose a "
+            "judging seed outside that range"
+        )
+
+
 def _unique(named: list[NamedMethod]) -> list[NamedMethod]:
     labels = [m.name for m in named]
     twice = sorted({n for n in labels if labels.count(n) > 1})
@@ -163,6 +179,7 @@ def run_chunk(
     banded = band_epochs(n)
     cov_epochs = covariance_epochs(cfg)
     data = simulate(cfg, seed, ids)
+    weights = state_weights(cfg) / DISPLAY_UNIT  # state_settled's, in display units
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
         if report is not None:
@@ -172,7 +189,9 @@ def run_chunk(
         res.runtime_s[m.name] = time.perf_counter() - t0
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
         res.sum_sq[m.name] = np.sum(err * err, axis=0)
-        res.trial_ms[m.name] = trial_mean_squares(err / DISPLAY_UNIT, data.t, cfg.run.settled_s)
+        res.trial_ms[m.name] = trial_mean_squares(
+            err / DISPLAY_UNIT, data.t, cfg.run.settled_s, weights
+        )
         res.diverged[m.name] = int(np.count_nonzero(out.diverged))
         res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
         res.notes[m.name] = dict(out.notes)
@@ -246,6 +265,7 @@ def run_benchmark(
         else [m if isinstance(m, NamedMethod) else resolve_method(m) for m in methods]
     )
     labels = [m.name for m in _unique(named)]
+    refuse_tuning_seed(named, seed)
     # the methods' settings sections, checked before any work; the resolved config (user
     # sections with their defaults written in) is what every chunk and the manifest see
     cfg = resolve_method_settings(cfg, named)

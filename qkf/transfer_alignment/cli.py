@@ -95,7 +95,10 @@ def bench_cmd(
         typer.Option(
             help="Comma-separated method specs, or 'all' (default): kf, kf-tuned, sage-husa, qkf, "
             "mmae, imm, fading, vbakf, covariance-matching, batch; named only: oracle "
-            "(truth-tuned reference), alarm-burst (NIS-alarm schedule); policy:PATH (a saved "
+            "(truth-tuned reference), alarm-burst (NIS-alarm schedule), glr (CUSUM reset), "
+            "clock (best open-loop schedule), hindsight (per-trial best schedule), "
+            "vbakf-tuned, imm-tuned, sage-husa-tuned, covariance-matching-tuned, fading-tuned, "
+            "alarm-burst-tuned, glr-tuned (Optuna-tuned); policy:PATH (a saved "
             "agent); package.module:function (your own); LABEL=SPEC."
         ),
     ] = None,
@@ -127,7 +130,7 @@ def bench_cmd(
     OUT/sweep_summary.csv.
     """
     from qkf.core.io import OutputError
-    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
+    from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed, run_benchmark
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
     from qkf.transfer_alignment.report import write_bench
     from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
@@ -153,6 +156,7 @@ def bench_cmd(
     source = str(config if config is not None else from_manifest)
     try:  # the methods' settings sections, the file named, before any work
         cfg = resolve_method_settings(cfg, named, source)
+        refuse_tuning_seed(named, cfg.run.seed if seed is None else seed)
         cases = (
             None
             if cfg.sweep is None or config is None
@@ -280,6 +284,18 @@ def study_cmd(
             "dotted.key=value (YAML value).",
         ),
     ] = None,
+    families: Annotated[
+        str | None,
+        typer.Option(help="A families study: run only these families (comma-separated)."),
+    ] = None,
+    methods: Annotated[
+        str | None,
+        typer.Option(
+            help="Methods added to the study's (comma-separated specs, e.g. "
+            "best=policy:agents/zoo/best/model.zip; NAME#SEED=... per training seed)."
+        ),
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Judging seed (replaces study: seed).")] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     resume: Annotated[
         bool, typer.Option(help="Finish an interrupted study in --out (finished cases kept).")
@@ -287,8 +303,9 @@ def study_cmd(
     overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png,
-    run.json. With --resume, a case folder is kept only if it was run with the same config
-    (--set included), methods, trials and seed."""
+    run.json. A families study (qkf study families) writes families.csv, families.md and
+    families.png instead of study.png. With --resume, a case folder is kept only if it was run
+    with the same config (--set included), methods, trials and seed."""
     from rich.markup import escape
 
     from qkf.core import presets
@@ -296,7 +313,13 @@ def study_cmd(
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.config import check_workload
     from qkf.transfer_alignment.methods import MethodOutputError
-    from qkf.transfer_alignment.study import CaseRun, load_study, prepare_output, run_study
+    from qkf.transfer_alignment.study import (
+        CaseRun,
+        load_study,
+        prepare_output,
+        run_study,
+        study_cases,
+    )
 
     try:
         unknown = presets.missing(study, STUDIES, "study")
@@ -306,6 +329,8 @@ def study_cmd(
     except ConfigError as exc:
         raise fail(str(exc)) from None
     if kind == "claims":
+        if families is not None or methods is not None or seed is not None:
+            raise fail("--families, --methods and --seed are not for a claims study")
         if trials is not None or set_:
             raise fail(
                 "--trials and --set are not for a claims study: its trials and configs are "
@@ -315,12 +340,20 @@ def study_cmd(
         return
     if trials is not None and not 1 <= trials <= MAX_TRIALS:
         raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
+    if seed is not None and not 0 <= seed < 2**63:
+        raise fail("--seed must be between 0 and 2**63 - 1")
+    chosen = None if families is None else [f.strip() for f in families.split(",") if f.strip()]
+    added = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
+    if methods is not None and not added:
+        raise fail("--methods: no method given")
     try:
-        spec, configs = load_study(study, list(set_ or []))
+        spec, configs = load_study(
+            study, list(set_ or []), families=chosen, methods=added, seed=seed
+        )
         if spec.kind == "crlb" and trials is not None:
             raise fail(f"--trials: {study} is a CRLB study; it runs no trials")
-        for i, (case, cfg) in enumerate(zip(spec.cases, configs, strict=True)):
-            if spec.kind == "bench":
+        for i, (case, cfg) in enumerate(zip(study_cases(spec), configs, strict=True)):
+            if spec.kind != "crlb":
                 try:
                     check_workload(cfg, spec.trials if trials is None else trials)
                 except ConfigError as exc:
@@ -342,11 +375,13 @@ def study_cmd(
     try:
         written = run_study(
             study, out_path, not quiet, resume, overwrite, on_case,
-            trials=trials, sets=list(set_ or []), on_start=on_start,
+            trials=trials, sets=list(set_ or []), on_start=on_start, families=chosen,
+            extra_methods=added, seed=seed,
         )  # fmt: skip
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None
-    out.print(f"wrote {len(written)} entries under {out_path}/ (study.csv, study.png, run.json)")
+    what = "families.csv, families.md, families.png" if spec.kind == "families" else "study.png"
+    out.print(f"wrote {len(written)} entries under {out_path}/ (study.csv, {what}, run.json)")
 
 
 def _claims(study: str, out_path: str | Path, quiet: bool, overwrite: bool = False) -> None:

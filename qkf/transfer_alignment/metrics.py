@@ -46,8 +46,15 @@ WINDOWS: tuple[str, ...] = ("final", "avg", "settled")
 """Time windows of the summary metrics: the last 20 % of the run, the whole run, and from
 ``run.settled_s`` to the end (where adaptation is judged: docs/methods.md)."""
 
-METRIC_COLUMNS: tuple[str, ...] = tuple(f"{g}_{w}" for g in GROUPS for w in WINDOWS)
-"""Summary metrics in column order: ``<group>_<window>``."""
+STATE_SETTLED = "state_settled"
+"""The whole-state metric (:mod:`qkf.transfer_alignment.judging`): dimensionless, each state's
+settled error in units of its final nominal CRLB."""
+
+METRIC_COLUMNS: tuple[str, ...] = (
+    *(f"{g}_{w}" for g in GROUPS for w in WINDOWS),
+    STATE_SETTLED,
+)
+"""Summary metrics in column order: ``<group>_<window>``, then ``state_settled``."""
 
 FINAL_FRACTION = 0.2
 
@@ -63,28 +70,43 @@ def window_masks(t: np.ndarray, settled_s: float) -> dict[str, np.ndarray]:
     return {"final": final, "avg": np.ones(n, dtype=bool), "settled": settled}
 
 
-def trial_mean_squares(err: np.ndarray, t: np.ndarray, settled_s: float) -> np.ndarray:
+def trial_mean_squares(
+    err: np.ndarray, t: np.ndarray, settled_s: float, weights: np.ndarray
+) -> np.ndarray:
     """Per trial, the mean square of each metric (B, K) in :data:`METRIC_COLUMNS` order: over
-    the window's epochs and the group's components. ``err`` (B, N, 15), any units."""
+    the window's epochs and the group's components; ``state_settled`` over the settled epochs
+    and all 15 states of ``err / weights``. ``err`` (B, N, 15) and ``weights`` (15,) in the
+    same units (any)."""
     masks = window_masks(t, settled_s)
     sq = err * err
     cols = []
     for sl in GROUPS.values():
         group = np.mean(sq[..., sl], axis=-1)  # (B, N)
         cols += [np.mean(group[:, masks[w]], axis=1) for w in WINDOWS]
+    scaled = (err[:, masks["settled"]] / weights) ** 2
+    cols.append(np.mean(scaled, axis=(1, 2)))
     return np.stack(cols, axis=1)
 
 
-def summarize(rms: np.ndarray, t: np.ndarray, settled_s: float) -> dict[str, float]:
+def summarize(
+    rms: np.ndarray, t: np.ndarray, settled_s: float, weights: np.ndarray | None = None
+) -> dict[str, float]:
     """The metrics of an RMS-over-trials curve (N, 15) (e.g. the CRLB): root mean square over
-    each window's epochs and the group's components."""
+    each window's epochs and the group's components; ``state_settled`` with ``weights`` (15,)
+    in the units of ``rms`` (NaN without them)."""
     masks = window_masks(t, settled_s)
     ms = rms * rms
-    return {
+    out = {
         f"{g}_{w}": float(np.sqrt(np.mean(ms[masks[w]][:, sl])))
         for g, sl in GROUPS.items()
         for w in WINDOWS
     }
+    out[STATE_SETTLED] = (
+        float("nan")
+        if weights is None
+        else float(np.sqrt(np.mean((rms[masks["settled"]] / weights) ** 2)))
+    )
+    return out
 
 
 def recovery_times(

@@ -19,6 +19,7 @@ from qkf.core.stats import average_nees_band
 from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
+from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.metrics import (
     METRIC_COLUMNS,
     WINDOWS,
@@ -405,12 +406,14 @@ def nees_window_text(res: BenchResult) -> str:
 
 def summary_markdown(res: BenchResult) -> str:
     cfg = res.config
-    crlb_summary = summarize(res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s)
+    crlb_summary = summarize(
+        res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s, state_weights(cfg) / DISPLAY_UNIT
+    )
     verdicts = {(p.method, p.metric): p.verdict for p in res.paired if p.baseline == "kf"}
     head = ["method", "trials"]
     for g in GROUP_TITLES:
         head += [f"{g.split('_')[0]} {w} [{UNITS[g]}]" for w in WINDOWS]
-    head.append("runtime [s]")
+    head += ["state settled [× CRLB]", "runtime [s]"]
     mark = {"better": " ↓", "worse": " ↑", "inconclusive": ""}
     level = 100 * cfg.run.bootstrap.level
     lines = [
@@ -645,6 +648,17 @@ def _read_rows(path: Path, columns: tuple[str, ...] = ()) -> list[_Row]:
     return rows
 
 
+def read_trials_csv(folder: str | Path) -> dict[str, np.ndarray]:
+    """``trials.csv`` of a bench folder read back: per method, the per-trial metric values
+    (trials, K) in :data:`METRIC_COLUMNS` order, rows in trial order. ``ConfigError`` names the
+    file and line of anything that cannot be read."""
+    path = Path(folder) / "trials.csv"
+    per: dict[str, list[tuple[int, list[float]]]] = defaultdict(list)
+    for r in _read_rows(path, TRIAL_COLUMNS):
+        per[r.text("method")].append((r.integer("trial"), [r.num(c) for c in METRIC_COLUMNS]))
+    return {m: np.array([v for _, v in sorted(rows)]) for m, rows in per.items()}
+
+
 def read_crlb_csv(path: str | Path) -> CrlbResult:
     """A ``crlb.csv`` read back (SI), its covariance left empty; ``ConfigError`` names the file
     and the line of a bad row."""
@@ -780,6 +794,7 @@ __all__ = [
     "TRIAL_COLUMNS",
     "load_bench",
     "read_crlb_csv",
+    "read_trials_csv",
     "redraw_bench",
     "rms_groups_png",
     "summary_markdown",

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from qkf.core import presets
 from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
@@ -51,10 +51,28 @@ from qkf.transfer_alignment.benchmark import (
     NEES_COLUMNS,
     BenchResult,
     parse_methods,
+    refuse_tuning_seed,
     run_benchmark,
 )
-from qkf.transfer_alignment.config import MAX_TRIALS, PRESETS, STUDIES, Config, load_config
+from qkf.transfer_alignment.config import (
+    MAX_TRIALS,
+    PRESETS,
+    STUDIES,
+    Config,
+    load_config,
+)
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.transfer_alignment.families import (
+    FAMILIES_COLUMNS,
+    FamilyRow,
+    VersusRow,
+    families_figure,
+    families_markdown,
+    family_rows,
+    seed_statistics,
+    versus_rows,
+)
+from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import NamedMethod, resolve_method_settings
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, group_rms, summarize
 from qkf.transfer_alignment.report import (
@@ -79,15 +97,35 @@ class Case(StrictModel):
 
 
 class Study(StrictModel):
+    """A study file. ``kind: families`` lists ``families`` (preset names) instead of ``base``
+    and ``cases``: each family is a case, run from its preset (qkf.transfer_alignment.families)."""
+
     name: str
     description: str = ""
-    kind: Literal["bench", "crlb"] = "bench"
-    base: str
+    kind: Literal["bench", "crlb", "families"] = "bench"
+    base: str | None = None
     methods: list[str] = Field(default_factory=lambda: ["kf"])
     trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 20
     seed: Annotated[int, Field(ge=0)] = 0
-    metric: str = "ma_urad_settled"
-    cases: list[Case] = Field(min_length=1)
+    metric: str = "state_settled"
+    cases: list[Case] = Field(default_factory=list)
+    families: list[str] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _shape(self) -> Study:
+        if self.kind == "families":
+            if self.cases or self.base is not None:
+                raise ValueError("a families study lists families, not base and cases")
+            if not self.families:
+                raise ValueError("families: at least one family")
+        else:
+            if self.base is None:
+                raise ValueError("base: required")
+            if not self.cases:
+                raise ValueError("cases: at least one case")
+            if self.families:
+                raise ValueError("families: only for kind: families")
+        return self
 
 
 @dataclass(frozen=True)
@@ -127,7 +165,10 @@ def case_rows(result: CaseResult) -> list[list[object]]:
     """Summary rows of a case, the case label first (``study.csv``, ``sweep_summary.csv``)."""
     if result.bench is None:
         cfg = result.case.cfg
-        summary = summarize(result.bound.bound / DISPLAY_UNIT, result.bound.t, cfg.run.settled_s)
+        weights = state_weights(cfg) / DISPLAY_UNIT
+        summary = summarize(
+            result.bound.bound / DISPLAY_UNIT, result.bound.t, cfg.run.settled_s, weights
+        )
         cells = [summary[c[: -len(s)] if (s := _suffix(c)) else c] for c in INTERVAL_COLUMNS]
         return [[result.case.label, "crlb", 0, 0, *cells, *[""] * len(NEES_COLUMNS), 0.0]]
     return [[result.case.label, *row] for row in summary_rows(result.bench)]
@@ -198,7 +239,10 @@ def prepare_output(out: str | Path, resume: bool, overwrite: bool, kind: str = "
         raise OutputError(f"{out}: holds files that are not a qkf run ({shown})")
 
 
-_SUMMARY_FILES = {"study.csv", "study.png", "sweep_summary.csv", RUN_FILE}
+_SUMMARY_FILES = {
+    "study.csv", "study.png", "sweep_summary.csv", "families.csv", "families.md", "families.png",
+    RUN_FILE,
+}  # fmt: skip
 """The files a study or sweep writes beside its case folders."""
 
 
@@ -341,28 +385,43 @@ def run_sweep(
 # ---- studies: named cases from a study file, plotted together --------------------------------
 
 
-def load_study(path: str | Path, sets: list[str] | None = None) -> tuple[Study, list[Config]]:
+def load_study(
+    path: str | Path,
+    sets: list[str] | None = None,
+    *,
+    families: list[str] | None = None,
+    methods: list[str] | None = None,
+    seed: int | None = None,
+) -> tuple[Study, list[Config]]:
     """Read a study (a path or a preset name) and the config of each case; ``sets``
-    (``dotted.key=value``) are applied to every case after the case's own.
+    (``dotted.key=value``) are applied to every case after the case's own. ``families``: run
+    only these families of a families study; ``methods``: added to the study's methods;
+    ``seed``: replaces the study's seed (each recorded in the returned study).
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, STUDIES)
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
+    study = _narrow(path, study, families, methods, seed)
     # a CRLB study plots the same summary columns (of the bound), so the same names apply
     if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
     named = []
-    if study.kind == "bench":
+    if study.kind != "crlb":
         try:
             named = parse_methods(study.methods)
         except ValueError as exc:
             raise ConfigError(f"{path}: methods: {exc}") from None
     _check_labels(path, study)
-    configs = []
-    for i, case in enumerate(study.cases):
+    if study.kind != "crlb":
         try:
-            base = case_base(path, case.base or study.base)
+            refuse_tuning_seed(named, study.seed)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+    configs = []
+    for i, case in enumerate(study_cases(study)):
+        try:
+            base = case_base(path, case.base or study.base or "")
             cfg = load_config(base, [*case.set, *(sets or [])])
             # every case's method settings checked now, not when its turn comes
             configs.append(resolve_method_settings(cfg, named, str(base)))
@@ -371,16 +430,53 @@ def load_study(path: str | Path, sets: list[str] | None = None) -> tuple[Study, 
     return study, configs
 
 
+def _narrow(
+    path: Path,
+    study: Study,
+    families: list[str] | None,
+    methods: list[str] | None,
+    seed: int | None,
+) -> Study:
+    """The study with the command line's choices applied: a families study becomes a bench
+    study over its families (each a case run from its preset)."""
+    update: dict[str, Any] = {}
+    if families is not None:
+        if study.kind != "families":
+            raise ConfigError(f"--families: {path} is a {study.kind} study, not a families study")
+        unknown = [f for f in families if f not in study.families]
+        if unknown or not families:
+            raise ConfigError(
+                f"--families: {', '.join(unknown) or 'none given'}: not a family of {path.name}; "
+                f"known: {', '.join(study.families)}"
+            )
+        update["families"] = list(dict.fromkeys(families))
+    if methods:
+        if study.kind == "crlb":
+            raise ConfigError(f"--methods: {path} is a CRLB study; it runs no method")
+        update["methods"] = [*study.methods, *methods]
+    if seed is not None:
+        update["seed"] = seed
+    return study.model_copy(update=update)
+
+
+def study_cases(study: Study) -> list[Case]:
+    """The cases of a study: its own, or one per family (label and base = the preset name)."""
+    if study.kind == "families":
+        return [Case(label=f, base=f) for f in study.families]
+    return list(study.cases)
+
+
 def _check_labels(path: Path, study: Study) -> None:
     """Refuse two cases with one label, or with labels that give one case folder: the second
     would overwrite the first's folder and rows."""
     first: dict[str, int] = {}
-    for j, case in enumerate(study.cases):
+    cases = study_cases(study)
+    for j, case in enumerate(cases):
         folder = case_folder(case.label)
         i = first.setdefault(folder, j)
         if i == j:
             continue
-        other = study.cases[i].label
+        other = cases[i].label
         if other == case.label:
             raise ConfigError(
                 f"{path}: cases.{j}.label: {case.label!r} is also the label of cases.{i}; "
@@ -413,17 +509,22 @@ def run_study(
     trials: int | None = None,
     sets: list[str] | None = None,
     on_start: Callable[[int, int, CaseRun], None] | None = None,
+    families: list[str] | None = None,
+    extra_methods: list[str] | None = None,
+    seed: int | None = None,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
-    ``study.png`` and ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied
-    to every case after its own (both recorded in run.json, and in each case's manifest)."""
-    study, configs = load_study(path, sets)
+    ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
+    ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied to every case after
+    its own (both recorded in run.json, and in each case's manifest); ``families``,
+    ``extra_methods``, ``seed``: see :func:`load_study`."""
+    study, configs = load_study(path, sets, families=families, methods=extra_methods, seed=seed)
     out = Path(out_dir)
     n = study.trials if trials is None else trials
-    methods = study.methods if study.kind == "bench" else None
+    methods = study.methods if study.kind != "crlb" else None
     cases = [
         CaseRun(case.label, case_folder(case.label), cfg)
-        for case, cfg in zip(study.cases, configs, strict=True)
+        for case, cfg in zip(study_cases(study), configs, strict=True)
     ]
     with _output(out, resume, overwrite, "study") as where:
         folders = [{"label": c.label, "folder": c.folder} for c in cases]
@@ -446,11 +547,56 @@ def run_study(
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
         level = configs[0].run.bootstrap.level
-        png = figure_png(study_figure(study, _curves(results), rows, level))
-        atomic_write_bytes(where / "study.png", png)
-        _remove_stale(where, {c.folder for c in cases} | {"study.csv", "study.png", RUN_FILE})
+        if study.kind == "families":
+            figures = write_families(where, study, cases, configs[0], n, results)
+        else:
+            png = figure_png(study_figure(study, _curves(results), rows, level))
+            atomic_write_bytes(where / "study.png", png)
+            figures = ["study.png"]
+        _remove_stale(where, {c.folder for c in cases} | {"study.csv", *figures, RUN_FILE})
         record()
-    return [*(out / c.folder for c in cases), out / "study.csv", out / "study.png"]
+    return [*(out / c.folder for c in cases), out / "study.csv", *(out / f for f in figures)]
+
+
+def write_families(
+    where: Path,
+    study: Study,
+    cases: list[CaseRun],
+    cfg: Config,
+    trials: int,
+    results: list[CaseResult] | None = None,
+) -> list[str]:
+    """``families.csv``, ``families.md`` and ``families.png`` of a families study, from its
+    case folders in ``where`` (qkf.transfer_alignment.families); returns the file names."""
+    boot = cfg.run.bootstrap
+    rows: list[FamilyRow] = []
+    seeds: dict[str, list[dict[str, object]]] = {}
+    from qkf.transfer_alignment.methods import METHODS
+
+    # the methods a reviewer asks about: those that are not registered methods (a policy,
+    # a method of one's own), each judged against every other method of the family
+    labels = [m.name for m in parse_methods(study.methods)]
+    focus = [m for m in labels if m not in METHODS]
+    versus: list[VersusRow] = []
+    for case in cases:
+        folder = where / case.folder
+        rows += family_rows(case.label, folder, boot.resamples, boot.level, study.seed)
+        versus += versus_rows(case.label, folder, focus, boot.resamples, boot.level, study.seed)
+        stats = seed_statistics(folder, labels, boot.level, seed=study.seed)
+        if stats:
+            seeds[case.label] = stats
+    notes: dict[str, str] = {}
+    for r in results or []:
+        for m in r.bench.methods if r.bench is not None else []:
+            for text in m.notes.values():
+                notes.setdefault(m.name, text)
+    families = [c.label for c in cases]
+    atomic_write_csv(where / "families.csv", FAMILIES_COLUMNS, [r.cells() for r in rows])
+    text = families_markdown(rows, families, trials, study.seed, boot.level, notes, seeds, versus)
+    atomic_write_bytes(where / "families.md", text.encode())
+    png = figure_png(families_figure(rows, families, boot.level))
+    atomic_write_bytes(where / "families.png", png)
+    return ["families.csv", "families.md", "families.png"]
 
 
 def redraw_study(folder: str | Path) -> list[Path]:
@@ -471,9 +617,10 @@ def redraw_study(folder: str | Path) -> list[Path]:
     study_csv = folder / "study.csv"
     table = _read_study_csv(study_csv)
     loaded: list[tuple[CaseResult, dict[str, bytes]]] = []
-    for case in study.cases:  # read everything first: a bad file leaves every figure as it was
+    cases = study_cases(study)
+    for case in cases:  # read everything first: a bad file leaves every figure as it was
         where = folder / case_folder(case.label)
-        if study.kind == "bench":
+        if study.kind != "crlb":
             bench = load_bench(where)
             run = CaseRun(case.label, where.name, bench.config)
             loaded.append((CaseResult(run, bench.bound, bench), bench_figures(bench)))
@@ -482,18 +629,24 @@ def redraw_study(folder: str | Path) -> list[Path]:
             cfg = validate(Config, cfg_info["config"], str(where / RUN_FILE), "configuration")
             bound = read_crlb_csv(where / "crlb.csv")
             loaded.append((CaseResult(CaseRun(case.label, where.name, cfg), bound, None), {}))
-    labels = [c.label for c in study.cases]
+    labels = [c.label for c in cases]
     missing = [lab for lab in labels if lab not in {r[0] for r in table}]
     if missing:
         raise ConfigError(f"{study_csv}: no row of case {missing[0]!r} (a truncated file?)")
     results = [r for r, _ in loaded]
     level = results[0].case.cfg.run.bootstrap.level
-    png = figure_png(study_figure(study, _curves(results), table, level))
+    png = None
+    if study.kind != "families":
+        png = figure_png(study_figure(study, _curves(results), table, level))
     written = []
     for result, figures in loaded:
         for name, content in figures.items():
             atomic_write_bytes(folder / result.case.folder / name, content)
             written.append(folder / result.case.folder / name)
+    if png is None:
+        runs = [r.case for r in results]
+        names = write_families(folder, study, runs, results[0].case.cfg, int(info["trials"]))
+        return [*written, *(folder / n for n in names if n.endswith(".png"))]
     atomic_write_bytes(folder / "study.png", png)
     return [*written, folder / "study.png"]
 
@@ -551,7 +704,7 @@ def study_figure(
     case and method. A bench study gets small multiples, one row per group and one column per
     case (colour: method, the same everywhere; dashed black: the CRLB; y shared along a row);
     a CRLB study one panel per group with one colour per case. One legend, outside the data."""
-    cases = [c.label for c in study.cases]
+    cases = [c.label for c in study_cases(study)]
     methods = list(dict.fromkeys(str(r[1]) for r in rows))
     color = {m: method_style(i, 2)["color"] for i, m in enumerate(methods)}
     bench = study.kind == "bench"
@@ -620,9 +773,10 @@ def study_figure(
     positive = [v for v in shown if np.isfinite(v) and v > 0]
     if positive and max(positive) >= 10 * min(positive):
         ax.set_yscale("log")
-    group = next(g for g in UNITS if study.metric.startswith(g))
-    window = study.metric[len(group) + 1 :]
-    ax.set_ylabel(f"{study.metric} [{UNITS[group]}]")
+    group = next((g for g in UNITS if study.metric.startswith(g)), None)
+    window = "settled" if group is None else study.metric[len(group) + 1 :]
+    unit = "× final CRLB, all states" if group is None else UNITS[group]
+    ax.set_ylabel(f"{study.metric} [{unit}]")
     if bench:
         what = (f"RMS over the {window} window, per case and method (error bars: "
                 f"{100 * level:g} % bootstrap over trials)")  # fmt: skip

@@ -42,14 +42,18 @@ from qkf.transfer_alignment.methods.base import (
     validate_output,
 )
 from qkf.transfer_alignment.methods.batch import run_batch
+from qkf.transfer_alignment.methods.clock import run_clock
 from qkf.transfer_alignment.methods.covariance_matching import run_covariance_matching
 from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
+from qkf.transfer_alignment.methods.glr import run_glr
+from qkf.transfer_alignment.methods.hindsight import run_hindsight
 from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
 from qkf.transfer_alignment.methods.oracle import run_oracle
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
+from qkf.transfer_alignment.methods.tuned import TUNED_METHODS
 from qkf.transfer_alignment.methods.vbakf import run_vbakf
 
 METHODS: Registry[Method] = Registry("method", group="qkf.methods")
@@ -80,6 +84,23 @@ METHODS.register("alarm-burst", run_alarm_burst)
 """A flight method (it reads only the innovations), but tuned like the oracle (its κ_base,
 κ_after and W are the oracle's, 66 tuning runs), so it is named explicitly rather than run by
 ``--methods all``."""
+
+METHODS.register("glr", run_glr)
+"""A flight method (a CUSUM on the innovations that re-opens the calibration block of P);
+named explicitly, beside its tuned variant ``glr-tuned``."""
+
+METHODS.register("clock", run_clock)
+"""A yardstick, not a flight method: the best open-loop κ(t), tuned with the truth."""
+
+METHODS.register("hindsight", run_hindsight)
+"""A yardstick: per trial, the best κ schedule with that trial's truth known (the bound)."""
+
+for _name, _tuned in TUNED_METHODS.items():
+    METHODS.register(_name, _tuned)
+"""The ``-tuned`` variants: hyperparameters tuned by Optuna on the tuning seeds (cached)."""
+
+YARDSTICKS: tuple[str, ...] = ("oracle", "clock", "hindsight")
+"""References that read the truth (per trial or on the tuning seeds): never flight methods."""
 
 METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(
     "method factory", group="qkf.method_factories"
@@ -182,6 +203,7 @@ __all__ = [
     "BUILTIN_METHODS",
     "METHODS",
     "METHOD_FACTORIES",
+    "YARDSTICKS",
     "Method",
     "MethodOutput",
     "MethodOutputError",

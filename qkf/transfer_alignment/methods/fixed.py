@@ -8,9 +8,9 @@ import numpy as np
 
 from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config, TunedConfig
+from qkf.transfer_alignment.judging import estimate_scores, pooled
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
-from qkf.transfer_alignment.metrics import state_errors
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
 
@@ -30,12 +30,13 @@ def run_kf(cfg: Config, data: ScenarioData) -> MethodOutput:
 def tuned_kappa(
     cfg: Config, progress_label: str = "tune kf-tuned"
 ) -> tuple[float, tuple[float, ...]]:
-    """The action whose constant κ gives the lowest time-averaged calibration RMS on the
-    tuning trials (seed ``adaptive.tuned.seed``, disjoint from any evaluation seed's streams).
+    """The action whose constant κ gives the lowest ``adaptive.tuned.metric`` (settled window,
+    RMS over trials; :mod:`..judging`) on the tuning trials (seed ``adaptive.tuned.seed``, a
+    range disjoint from every judging seed).
 
-    Returns ``(κ*, calibration RMS per action)``; the RMS is over trials, epochs and the nine
-    calibration terms, in 1e-6 (ppm or µrad). ``progress_label``: the progress row it shows
-    while a benchmark's progress bar is open (:func:`qkf.core.montecarlo.progress_stage`).
+    Returns ``(κ*, score per action)`` (the metric's own units: dimensionless for
+    ``state_settled``, SI for a group). ``progress_label``: the progress row it shows while a
+    benchmark's progress bar is open (:func:`qkf.core.montecarlo.progress_stage`).
     """
     tc = cfg.adaptive.tuned
     kappas = action_values(cfg)
@@ -46,10 +47,9 @@ def tuned_kappa(
     scores = []
     for kappa in kappas:
         out = run_fixed(cfg, data, float(kappa))
-        err = state_errors(out.est, data.q_true, data.bias, data.calib)[..., 6:15]
-        scores.append(float(np.sqrt(np.mean(err**2))) / 1e-6)
+        scores.append(pooled(estimate_scores(cfg, out.est, data, tc.metric), out.diverged))
         advance(1)
-    best = int(np.nanargmin(scores))
+    best = int(np.argmin(scores))
     return float(kappas[best]), tuple(scores)
 
 

@@ -12,7 +12,8 @@ The schedule, per trial with jump time ``t_j``::
 ``(κ_base, κ_after, W)`` are chosen on the tuning seeds (``adaptive.tuned``) by coordinate
 search: ``κ_base`` as the best constant κ of the action set, then ``(κ_after, W)`` over the
 action set × ``adaptive.oracle.windows_s``; the criterion is the settled-window RMS of
-``adaptive.oracle.metric``. Without a jump (no ``jump_t``) the oracle is the tuned constant κ.
+``adaptive.oracle.metric`` (``state_settled`` by default: :mod:`..judging`). Without a jump
+(no ``jump_t``) the oracle is the tuned constant κ.
 """
 
 from __future__ import annotations
@@ -23,25 +24,24 @@ import numpy as np
 
 from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config, OracleConfig
+from qkf.transfer_alignment.judging import estimate_scores, pooled
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
-from qkf.transfer_alignment.metrics import state_errors, window_masks
-from qkf.transfer_alignment.model import CALIB
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
-from qkf.transfer_alignment.states import GROUPS
-
-METRIC_STATES = {
-    "ma_urad_settled": GROUPS["ma_urad"],
-    "sf_ppm_settled": GROUPS["sf_ppm"],
-    "calibration_settled": CALIB,
-}
 
 
 def schedule(data: ScenarioData, base: float, after: float, window_s: float) -> np.ndarray:
-    """κ per trial and epoch (B, N): ``after`` in ``[t_j, t_j + W)``, ``base`` elsewhere."""
-    jump = np.full(data.n_trials, np.nan) if data.jump_t is None else data.jump_t
+    """κ per trial and epoch (B, N): ``after`` in ``[t_j, t_j + W)`` for every jump time
+    ``t_j`` of the trial (``data.jumps_t``; windows that overlap merge), ``base`` elsewhere."""
+    columns = [] if data.jump_t is None else [data.jump_t]
+    if data.jumps_t is not None:
+        # jump_t is jumps_t's first column in simulated data; both are read, so that data whose
+        # jump_t alone was set by hand still opens its window there
+        columns += list(data.jumps_t.T)
     t = data.t[None, :]
-    inside = (t >= jump[:, None] - 1e-9) & (t < jump[:, None] + window_s - 1e-9)
+    inside = np.zeros((data.n_trials, data.n_epochs), dtype=bool)
+    for jump in columns:  # NaN (no jump) compares false: no window
+        inside |= (t >= jump[:, None] - 1e-9) & (t < jump[:, None] + window_s - 1e-9)
     return np.where(inside, after, base)
 
 
@@ -54,12 +54,9 @@ def run_schedule(cfg: Config, data: ScenarioData, kappa: np.ndarray) -> MethodOu
 
 
 def settled_score(cfg: Config, data: ScenarioData, out: MethodOutput) -> float:
-    """The tuning criterion: RMS over trials and settled epochs of the metric's states (SI)."""
-    err = state_errors(out.est, data.q_true, data.bias, data.calib)
-    settled = window_masks(data.t, cfg.run.settled_s)["settled"]
-    sl = METRIC_STATES[cfg.adaptive.oracle.metric]
-    value = float(np.sqrt(np.mean(err[:, settled, sl] ** 2)))
-    return value if np.isfinite(value) and not out.diverged.any() else float("inf")
+    """The tuning criterion: RMS over trials of ``adaptive.oracle.metric`` (settled window)."""
+    scores = estimate_scores(cfg, out.est, data, cfg.adaptive.oracle.metric)
+    return pooled(scores, out.diverged)
 
 
 @dataclass(frozen=True)

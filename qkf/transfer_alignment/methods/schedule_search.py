@@ -1,0 +1,386 @@
+r"""Search for the best piecewise-constant κ schedule with the truth known (the engine of the
+``hindsight`` and ``clock`` yardsticks, docs/methods.md).
+
+A schedule holds one action of the set ``{κ_a}`` (:func:`~.base.action_values`) per *period* of
+``P`` epochs: ``κ(t_k) = κ_{u[k // P]}``, ``u ∈ {0 … A−1}^T``, ``T = ⌈N / P⌉``. Its cost for
+trial ``b`` is the settled-window score of the filter run with it (:mod:`..judging`)::
+
+    J_b(u) = sqrt( S_b(u) / (N_s · n) ),  S_b(u) = Σ_{k settled} Σ_{i ∈ states} (e_{b,k,i} / w_i)²
+
+(``N_s`` settled epochs, ``n`` states of the metric, ``w`` the metric's weights: the final
+nominal CRLB for ``state_settled``, 1 for a group metric). Two criteria: *per trial*, each
+trial has its own schedule and minimises its own ``J_b`` (hindsight); *pooled*, one schedule
+for all trials minimises ``sqrt(mean_b J_b²)`` (clock; infinite if a trial diverges).
+
+Coordinate descent over time blocks. Start from the best of the constant schedules and any
+given starting schedules (one batched run from t = 0). Then for each block length ``L`` (in
+periods, coarse to fine), ``passes`` sweeps; a sweep visits the blocks ``[jL, (j+1)L)`` in
+time order and for each tries every action held over the block, the incumbent schedule
+everywhere else, keeping the best if it is strictly better than the incumbent (ties keep the
+incumbent, so the score never increases). Why it is affordable:
+
+* the schedule before the block is the incumbent's, so the filter state at the block start is
+  shared by every candidate: an incumbent filter is carried forward block by block and
+  replicated into one row per (trial, candidate); a candidate costs ``N − s`` epochs from
+  the block start ``s``, not ``N``;
+* the sum ``S`` over the settled epochs before ``s`` is the incumbent's, accumulated while
+  carrying it; a candidate adds its own from ``s`` on;
+* all (trial, candidate) rows run in one batched filter, in chunks of epochs (bounded memory);
+* a candidate equal to the incumbent over the block is not run (its score is known), and in
+  later passes at one block length a trial whose previous pass changed nothing is left out
+  (the pass would repeat it exactly).
+
+A sweep at block length ``L`` epochs costs about ``A N² / (2L)`` trial-epochs per trial.
+``focus`` restricts a block length to blocks near a switch of the incumbent (where it
+changes action): the fine lengths then sharpen the switching times the coarse ones found
+instead of revisiting long constant stretches (see :func:`search`).
+
+The errors are those of :func:`~qkf.transfer_alignment.metrics.state_errors` (attitude
+``δθ = Log(Ĉᵀ C_true)``, ``Δb = b − b̂``, ``Δp = p − p̂``), computed here with quaternion
+algebra because the search evaluates millions of epochs; the scores agree with
+:func:`~qkf.transfer_alignment.judging.estimate_scores` to rounding.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from qkf.core.montecarlo import progress_stage
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.judging import METRIC_STATES, STATE_METRIC, pooled, state_weights
+from qkf.transfer_alignment.methods.base import action_values, new_filter, per_epoch
+from qkf.transfer_alignment.metrics import window_masks
+from qkf.transfer_alignment.scenario import ScenarioData
+
+ROW_EPOCHS = 100_000
+"""Rows × epochs per filter call of a rollout: the chunk length is this over the row count
+(about 70 MB of records and inputs), so the memory does not grow with the batch."""
+
+
+@dataclass(frozen=True)
+class SearchPlan:
+    """What :func:`search` optimises and how.
+
+    ``period``: epochs per schedule period; ``blocks``: block lengths in periods, visited in
+    this order (coarse to fine); ``passes``: sweeps per block length; ``pooled``: one schedule
+    for all trials (else one per trial); ``metric``: the judged metric
+    (:func:`~qkf.transfer_alignment.judging.trial_scores`); ``focus``: per block length,
+    ``None`` (every block) or a reach in periods: only blocks within it of a switch of the
+    incumbent (lengths beyond the tuple: every block).
+    """
+
+    period: int
+    blocks: tuple[int, ...]
+    passes: int = 1
+    pooled: bool = False
+    metric: str = STATE_METRIC
+    focus: tuple[int | None, ...] = ()
+
+
+@dataclass
+class SearchResult:
+    """The schedule found and how the search got there.
+
+    ``choice`` (B, T): action index per trial and period (pooled: the same row for every
+    trial); ``kappa`` (B, N): κ per epoch; ``stages``: ``"start"``, then ``"<L> s #<pass>"``
+    per sweep; ``scores`` (B, S): each trial's score after each stage (the metric's units);
+    ``runs``: rollouts (one trial and candidate from a block start to the end of the run);
+    ``trial_epochs``: filter trial-epochs spent (rollouts and the carried incumbent);
+    ``seconds``: wall time.
+    """
+
+    choice: np.ndarray
+    kappa: np.ndarray
+    stages: tuple[str, ...]
+    scores: np.ndarray
+    runs: int
+    trial_epochs: int
+    seconds: float
+
+    def pooled_scores(self) -> np.ndarray:
+        """RMS over trials of the score after each stage (S,)."""
+        return np.array([pooled(self.scores[:, i]) for i in range(self.scores.shape[1])])
+
+
+def attitude_error(q_hat: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    """``δθ = Log(Ĉᵀ C_true)`` (..., 3) rad from scalar-last quaternions (..., 4).
+
+    The same rotation vector as ``(R(q̂)⁻¹ R(q)).as_rotvec()`` of scipy, ten times faster:
+    the product ``q̂* ⊗ q`` written out, then angle ``2 atan2(|v|, |w|)`` about ``v / |v|``
+    (the sign of ``w`` picks the short way round).
+    """
+    x1, y1, z1, w1 = (-q_hat[..., 0], -q_hat[..., 1], -q_hat[..., 2], q_hat[..., 3])
+    x2, y2, z2, w2 = (q_true[..., i] for i in range(4))
+    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+    v = np.stack(
+        [
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=-1,
+    )
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, np.abs(w))
+    # angle / s → 2 / |q| as s → 0: the limit keeps an exact match at zero error
+    ratio = np.where(s > 0.0, angle / np.where(s > 0.0, s, 1.0), 2.0 / np.hypot(s, w))
+    return v * (np.where(w < 0.0, -ratio, ratio))[..., None]
+
+
+class _Scorer:
+    """Sums ``S`` of squared weighted errors over the settled epochs of a chunk, per row."""
+
+    def __init__(self, cfg: Config, data: ScenarioData, metric: str) -> None:
+        settled = window_masks(data.t, cfg.run.settled_s)["settled"]
+        first = int(np.flatnonzero(settled)[0])
+        if not settled[first:].all():  # window_masks gives a suffix; the sums rely on it
+            raise ValueError("the settled window must run to the end of the run")
+        if metric == STATE_METRIC:
+            self.states: slice = slice(0, 15)
+            weights = state_weights(cfg)
+        elif metric in METRIC_STATES:
+            self.states = METRIC_STATES[metric]
+            weights = np.ones(15)
+        else:
+            known = ", ".join([STATE_METRIC, *METRIC_STATES])
+            raise ValueError(f"unknown metric {metric!r}; known: {known}")
+        self.inv_w = 1.0 / weights[self.states]
+        self.first = first
+        self.norm = float(settled.sum() * self.inv_w.size)
+        self.data = data
+
+    def chunk(self, est: np.ndarray, trials: np.ndarray, k0: int) -> np.ndarray:
+        """``Σ`` over the settled epochs of ``est`` (R, n, 16), which covers epochs
+        ``[k0, k0 + n)`` of the rows' ``trials`` (R,); NaN for a row whose errors are not
+        finite there."""
+        skip = max(0, self.first - k0)
+        n = est.shape[1]
+        if skip >= n:
+            return np.zeros(est.shape[0])
+        sl = slice(k0 + skip, k0 + n)
+        d = self.data
+        est = est[:, skip:]
+        err = np.empty((*est.shape[:2], 15))
+        err[..., 0:3] = attitude_error(est[..., 0:4], d.q_true[trials, sl])
+        err[..., 3:6] = d.bias[trials, sl] - est[..., 4:7]
+        err[..., 6:15] = d.calib[trials, sl] - est[..., 7:16]
+        return np.sum((err[..., self.states] * self.inv_w) ** 2, axis=(1, 2))
+
+    def score(self, total: np.ndarray) -> np.ndarray:
+        """``J`` from ``S``; ``inf`` where ``S`` is not finite (a lost trial never wins)."""
+        with np.errstate(invalid="ignore"):
+            j = np.sqrt(total / self.norm)
+        return np.where(np.isfinite(j), j, np.inf)
+
+
+class _Search:
+    """One search over the trials of ``data`` (state shared by the stages)."""
+
+    def __init__(self, cfg: Config, data: ScenarioData, plan: SearchPlan) -> None:
+        self.cfg, self.data, self.plan = cfg, data, plan
+        self.values = action_values(cfg)
+        self.scorer = _Scorer(cfg, data, plan.metric)
+        n = data.n_epochs
+        self.n_periods = -(-n // plan.period)
+        self.period_of = np.arange(n) // plan.period  # period index of each epoch
+        self.runs = 0
+        self.trial_epochs = 0
+
+    # --- filter runs -------------------------------------------------------------------
+
+    def _kappa(self, sched: np.ndarray, k0: int, k1: int) -> np.ndarray:
+        return self.values[sched[:, self.period_of[k0:k1]]]
+
+    def _inputs(
+        self, trials: np.ndarray | slice, k0: int, k1: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        d = self.data
+        sl = slice(k0, k1)
+        return d.gyro[trials, sl], d.ads_q[trials, sl], d.ads_rate[trials, sl], d.has_meas[sl]
+
+    def rollout(
+        self, carry: TransferAlignmentKF, trials: np.ndarray, sched: np.ndarray, start: int
+    ) -> np.ndarray:
+        """``S`` over the settled epochs in ``[start, N)`` of rows that start from the carried
+        filter's trial ``trials[r]`` (rows of a trial adjacent) and follow ``sched[r]`` (R, T).
+        """
+        rows, n = trials.size, self.data.n_epochs
+        kf = TransferAlignmentKF(carry.params, rows)
+        # one load per trial: its rows are adjacent, and a one-row slice broadcasts over them
+        edges = np.flatnonzero(np.diff(trials)) + 1
+        for r0, r1 in zip([0, *edges.tolist()], [*edges.tolist(), rows], strict=True):
+            b = int(trials[r0])
+            kf.load_trial(slice(r0, r1), carry, slice(b, b + 1))
+        total = np.zeros(rows)
+        chunk = int(np.clip(ROW_EPOCHS // rows, 50, 600))
+        for k0 in range(start, n, chunk):
+            k1 = min(n, k0 + chunk)
+            rec = kf.step(*self._inputs(trials, k0, k1), self._kappa(sched, k0, k1))
+            total += self.scorer.chunk(rec.est, trials, k0)
+        total[kf.diverged] = np.nan
+        self.runs += rows
+        self.trial_epochs += rows * (n - start)
+        return total
+
+    def advance(
+        self, carry: TransferAlignmentKF, sched: np.ndarray, k0: int, k1: int
+    ) -> np.ndarray:
+        """Carry the incumbent filters (all trials) over ``[k0, k1)``; ``S`` of those epochs."""
+        rec = carry.step(*self._inputs(slice(None), k0, k1), self._kappa(sched, k0, k1))
+        self.trial_epochs += carry.n_trials * (k1 - k0)
+        return self.scorer.chunk(rec.est, np.arange(carry.n_trials), k0)
+
+    # --- choosing -----------------------------------------------------------------------
+
+    def pick(self, cand: np.ndarray, incumbent: np.ndarray) -> np.ndarray:
+        """Per trial, the option to take (−1: keep the incumbent) from candidate scores
+        (B, O) (``inf`` where not run) and the incumbent's scores (B,)."""
+        if self.plan.pooled:
+            totals = [pooled(cand[:, o]) for o in range(cand.shape[1])]
+            best = int(np.argmin(totals))
+            # strictly better only: a tie keeps the incumbent
+            take = best if totals[best] < pooled(incumbent) else -1
+            return np.full(cand.shape[0], take)
+        best = np.argmin(cand, axis=1)
+        better = cand[np.arange(cand.shape[0]), best] < incumbent
+        return np.where(better, best, -1)
+
+    def start(self, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The best of the constant schedules and ``starts`` (each (B, T) action indices):
+        ``(choice (B, T), scores (B,))``."""
+        b, t, a = self.data.n_trials, self.n_periods, self.values.size
+        options = [np.full((b, t), i) for i in range(a)] + [np.asarray(s) for s in starts]
+        o = len(options)
+        trials = np.repeat(np.arange(b), o)  # trial-major: a trial's rows adjacent
+        sched = np.stack(options, axis=1).reshape(b * o, t)
+        carry = new_filter(self.cfg, self.data)
+        cand = self.scorer.score(self.rollout(carry, trials, sched, 0)).reshape(b, o)
+        if self.plan.pooled:
+            best = np.full(b, int(np.argmin([pooled(cand[:, i]) for i in range(o)])))
+        else:
+            best = np.argmin(cand, axis=1)
+        rows = np.arange(b)
+        return np.stack(options, axis=1)[rows, best], cand[rows, best]
+
+    def sweep(
+        self, choice: np.ndarray, score: np.ndarray, length: int, want: np.ndarray
+    ) -> np.ndarray:
+        """One pass over the blocks of ``length`` periods, in place on ``choice`` and
+        ``score``; trial ``i`` tries a block only if ``want[i]`` (B, T) holds for one of its
+        periods. Returns which trials changed (B,)."""
+        b, a, p = self.data.n_trials, self.values.size, self.plan.period
+        n = self.data.n_epochs
+        changed = np.zeros(b, dtype=bool)
+        carry = new_filter(self.cfg, self.data)
+        prefix = np.zeros(b)  # S of the incumbent before the block start
+        for p0 in range(0, self.n_periods, length):
+            p1 = min(self.n_periods, p0 + length)
+            k0, k1 = p0 * p, min(n, p1 * p)
+            tries = np.any(want[:, p0:p1], axis=1)
+            block = choice[:, p0:p1]
+            same = (block == block[:, :1]).all(axis=1)
+            # (trial, action) rows; the incumbent's own action over the block is known
+            run = tries[:, None] & ~(same[:, None] & (block[:, :1] == np.arange(a)))
+            trials, actions = np.nonzero(run)  # trial-major
+            if trials.size:
+                sched = choice[trials].copy()
+                sched[:, p0:p1] = actions[:, None]
+                total = prefix[trials] + self.rollout(carry, trials, sched, k0)
+                cand = np.full((b, a), np.inf)
+                cand[trials, actions] = self.scorer.score(total)
+                if self.plan.pooled:  # every trial needs its row for a pooled score
+                    cand[:, ~run.all(axis=0)] = np.inf
+                take = self.pick(cand, score)
+                for i in np.flatnonzero(take >= 0):
+                    choice[i, p0:p1] = take[i]
+                    score[i] = cand[i, take[i]]
+                    changed[i] = True
+            prefix += self.advance(carry, choice, k0, k1)
+        return changed
+
+
+def switches(row: np.ndarray, reach: int) -> np.ndarray:
+    """Periods (T,) within ``reach`` periods of a switch of the schedule ``row`` (T,) of
+    action indices: a period whose action differs from the one before it."""
+    t = row.size
+    near = np.zeros(t, dtype=bool)
+    for i in np.flatnonzero(np.diff(row) != 0) + 1:
+        near[max(0, i - reach) : min(t, i + reach)] = True
+    return near
+
+
+def search(
+    cfg: Config,
+    data: ScenarioData,
+    plan: SearchPlan,
+    starts: Sequence[np.ndarray] = (),
+    progress_label: str | None = None,
+) -> SearchResult:
+    """Coordinate descent for the best schedule (module docstring).
+
+    ``starts``: extra starting schedules, κ per trial and epoch (B, N) or (N,); each is
+    snapped to the schedule grid (its value at each period's first epoch, rounded to the
+    nearest action in log κ). In a pooled search a start must be the same for every trial.
+    ``focus`` (:class:`SearchPlan`): at a block length with a reach, a block is visited
+    only if it lies within that many periods of a switch of the incumbent as it stands when
+    that length begins (per trial in a per-trial search). ``progress_label``:
+    a counted row under a benchmark's progress bar, one step per sweep.
+    """
+    t0 = time.perf_counter()
+    s = _Search(cfg, data, plan)
+    b, t = data.n_trials, s.n_periods
+    grid = [snap(cfg, np.broadcast_to(k, (b, data.n_epochs)), plan.period) for k in starts]
+    if plan.pooled and any((g != g[:1]).any() for g in grid):
+        raise ValueError("a pooled search needs starting schedules shared by every trial")
+    advance = (
+        progress_stage(progress_label, 1 + len(plan.blocks) * plan.passes, "sweeps")
+        if progress_label
+        else _no_progress
+    )
+    choice, score = s.start(grid)
+    stages, scores = ["start"], [score.copy()]
+    advance(1)
+    for level, length in enumerate(plan.blocks):
+        reach = plan.focus[level] if level < len(plan.focus) else None
+        if reach is None:
+            want = np.ones((b, t), dtype=bool)
+        elif plan.pooled:
+            want = np.broadcast_to(switches(choice[0], reach), (b, t)).copy()
+        else:
+            want = np.stack([switches(row, reach) for row in choice])
+        for rep in range(plan.passes):
+            if want.any():
+                changed = s.sweep(choice, score, length, want)
+                # a trial that a pass left unchanged would only repeat it exactly
+                want &= changed[:, None]
+            stages.append(f"{length * plan.period * data.dt:g} s #{rep + 1}")
+            scores.append(score.copy())
+            advance(1)
+    return SearchResult(
+        choice=choice,
+        kappa=per_epoch(s.values[choice], plan.period, data.n_epochs),
+        stages=tuple(stages),
+        scores=np.stack(scores, axis=1),
+        runs=s.runs,
+        trial_epochs=s.trial_epochs,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def snap(cfg: Config, kappa: np.ndarray, period: int) -> np.ndarray:
+    """A κ schedule (B, N) on the search grid: action indices (B, T) of the value at each
+    period's first epoch, the nearest action in log κ."""
+    log_actions = np.log(action_values(cfg))
+    first = np.asarray(kappa, dtype=float)[:, ::period]
+    if not np.all(np.isfinite(first) & (first > 0.0)):
+        raise ValueError("a starting schedule must be finite and positive")
+    return np.argmin(np.abs(np.log(first)[..., None] - log_actions), axis=-1)
+
+
+def _no_progress(n: int = 1) -> None:
+    """``advance`` when no progress row is wanted."""
