@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from qkf.core import units
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config, RandomEventParts, Scenario, load_config
+from qkf.transfer_alignment.families import FAMILIES as ALL_FAMILIES
 from qkf.transfer_alignment.methods.oracle import schedule
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import (
@@ -30,16 +31,9 @@ from qkf.transfer_alignment.scenario import (
     trial_streams,
 )
 
-FAMILIES = (
-    "steady_random",
-    "thermal_snap_random",
-    "double_snap_random",
-    "small_snap_random",
-    "early_snap_random",
-    "thermal_drift_random",
-    "ads_mismatch_random",
-)
-PRESETS = (*FAMILIES, "mixed_random")
+# the families of qkf study families: the mixture and the seven it draws from
+PRESETS = ALL_FAMILIES
+FAMILIES = tuple(f for f in ALL_FAMILIES if f != "mixed_random")
 SEED = 5_000_000  # tests use seeds outside every benchmark range (docs/environment.md)
 DRAWS = 10_000
 P_MIN = 1e-3  # a fit is refused below this p-value (the draws are seeded: no flakiness)

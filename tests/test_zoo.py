@@ -95,10 +95,13 @@ def test_zoo_train_and_evaluate(tmp_path: Path) -> None:
     assert not (folder / "evaluation").exists()
     assert (folder / "card.md").read_bytes() == card_before
     judged = tmp_path / "w" / "evaluation"
+    # the entry's judged metric (state_settled unless its zoo.yaml names another)
+    judge = yaml.safe_load((folder / "zoo.yaml").read_text())["judge"]
+    metric = judge.get("metric", "state_settled")
     trials = {}
     with (judged / "thermal_snap_seed5_trials.csv").open() as f:
         for row in csv.DictReader(f):
-            trials.setdefault(row["method"], []).append(float(row["ma_urad_settled"]))
+            trials.setdefault(row["method"], []).append(float(row[metric]))
     rms = {m: float(np.sqrt(np.mean(np.square(v)))) for m, v in trials.items()}
     with (judged / "zoo_summary.csv").open() as f:
         rows = list(csv.DictReader(f))
