@@ -128,7 +128,7 @@ def test_seed_statistics_match_a_hand_iqm(small_study: Path) -> None:
     (kf-tuned / method per trial) computed here; the probability of improvement over kf-tuned
     is the Mann–Whitney share of pairs where the policy scores higher."""
     folder = small_study / "thermal_snap_random"
-    stats = seed_statistics(folder, ["kf-tuned"], 0.95, reps=200)
+    stats = seed_statistics(read_trials_csv(folder), ["kf-tuned"], 0.95, reps=200)
     assert len(stats) == 1 and stats[0]["policy"] == "p" and stats[0]["seeds"] == 2
     values = read_trials_csv(folder)
     j = METRIC_COLUMNS.index(STATE_SETTLED)

@@ -38,7 +38,7 @@ import numpy as np
 from qkf.core.plotting import Figure, plt
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import load_bench, read_trials_csv
+from qkf.transfer_alignment.report import load_bench
 
 FAMILIES: tuple[str, ...] = (
     "steady_random",
@@ -91,11 +91,17 @@ class FamilyRow:
 
 
 def family_rows(
-    family: str, folder: Path, resamples: int, level: float, seed: int
+    family: str,
+    folder: Path,
+    values: dict[str, np.ndarray],
+    resamples: int,
+    level: float,
+    seed: int,
 ) -> list[FamilyRow]:
-    """The rows of one family from its case folder (module docstring). ``resamples``,
-    ``level``: the paired bootstrap; ``seed`` seeds its resamples (reproducible tables)."""
-    values = read_trials_csv(folder)
+    """The rows of one family from its case folder (module docstring); ``values``: the
+    folder's ``trials.csv`` (:func:`~qkf.transfer_alignment.report.read_trials_csv`, read once
+    per case for every table). ``resamples``, ``level``: the paired bootstrap; ``seed`` seeds
+    its resamples (reproducible tables)."""
     bench = load_bench(folder)
     cols = [METRIC_COLUMNS.index(m) for m in FAMILY_METRICS if m in METRIC_COLUMNS]
     methods = [m.name for m in bench.methods]
@@ -136,7 +142,7 @@ class VersusRow:
 
 def versus_rows(
     family: str,
-    folder: Path,
+    values: dict[str, np.ndarray],
     focus: Sequence[str],
     resamples: int,
     level: float,
@@ -146,7 +152,6 @@ def versus_rows(
     the case on ``state_settled``, paired over the same resamples of trials: what a reviewer
     asks of a learned policy (does it beat the clock, the tuned baselines; how far from the
     hindsight bound)."""
-    values = read_trials_csv(folder)
     j = METRIC_COLUMNS.index(STATE_SETTLED)
     n = next(iter(values.values())).shape[0]
     counts = resample_counts(n, resamples, seed)
@@ -175,14 +180,18 @@ def headroom(rows: Sequence[FamilyRow], family: str) -> tuple[float, float] | No
 
 
 def seed_statistics(
-    folder: Path, baselines: Sequence[str], level: float, reps: int = 2000, seed: int = 0
+    values: dict[str, np.ndarray],
+    baselines: Sequence[str],
+    level: float,
+    reps: int = 2000,
+    seed: int = 0,
 ) -> list[dict[str, object]]:
-    """For every policy run over several training seeds (labels ``NAME#SEED``) in one case
-    folder: rliable's IQM over seeds × trials of the normalised score ``RMS_kf-tuned / RMS_m``
-    per trial (``state_settled``; above 1 is better), with its stratified bootstrap interval,
-    and the probability of improvement over each baseline (P(score_policy > score_baseline),
-    rliable's Mann–Whitney form averaged over trials). Empty without seed groups or kf-tuned."""
-    values = read_trials_csv(folder)
+    """For every policy run over several training seeds (labels ``NAME#SEED``) among a case's
+    per-trial ``values`` (its ``trials.csv``): rliable's IQM over seeds × trials of the
+    normalised score ``RMS_kf-tuned / RMS_m`` per trial (``state_settled``; above 1 is better),
+    with its stratified bootstrap interval, and the probability of improvement over each
+    baseline (P(score_policy > score_baseline), rliable's Mann–Whitney form averaged over
+    trials). Empty without seed groups or kf-tuned."""
     if REFERENCE not in values:
         return []
     j = METRIC_COLUMNS.index(STATE_SETTLED)

@@ -83,6 +83,7 @@ from qkf.transfer_alignment.report import (
     load_bench,
     method_style,
     read_crlb_csv,
+    read_trials_csv,
     summary_rows,
     write_bench,
     write_crlb_csv,
@@ -580,9 +581,10 @@ def write_families(
     versus: list[VersusRow] = []
     for case in cases:
         folder = where / case.folder
-        rows += family_rows(case.label, folder, boot.resamples, boot.level, study.seed)
-        versus += versus_rows(case.label, folder, focus, boot.resamples, boot.level, study.seed)
-        stats = seed_statistics(folder, labels, boot.level, seed=study.seed)
+        values = read_trials_csv(folder)  # once per case, for every table below
+        rows += family_rows(case.label, folder, values, boot.resamples, boot.level, study.seed)
+        versus += versus_rows(case.label, values, focus, boot.resamples, boot.level, study.seed)
+        stats = seed_statistics(values, labels, boot.level, seed=study.seed)
         if stats:
             seeds[case.label] = stats
     notes: dict[str, str] = {}
