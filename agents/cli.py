@@ -229,24 +229,33 @@ def zoo_evaluate_cmd(
     ] = False,
 ) -> None:
     """Judge every trained seed against the baselines and the oracle on held-out benchmark
-    seeds; writes evaluation/ and card.md into --work (and, with --update-entry, into the
-    entry)."""
-    from agents.zoo.commands import evaluate_entry
+    seeds and, with a families: section in zoo.yaml, on the scenario families (qkf study
+    families into --work/families/); writes evaluation/ and card.md into --work (and, with
+    --update-entry, into the entry). Refused before any work: a seed of zoo.yaml without a
+    model, or trained on another environment version than the entry's training config."""
+    from agents.zoo.commands import check_entry, evaluate_entry
+    from qkf.core.io import OutputError
+    from qkf.transfer_alignment.methods import MethodOutputError
 
     entry = _entry(name)
     if trials is not None and not 2 <= trials <= MAX_TRIALS:
         raise fail(f"--trials must be between 2 and {MAX_TRIALS:,}")
     if not entry.trained_seeds():
         raise fail(f"{entry.folder}: no trained seed (run qkf zoo train {entry.name} first)")
-    folder = _work(work, entry)
     try:
+        check_entry(entry)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    folder = _work(work, entry)
+    try:  # evaluate_entry checks the families study and the work folder before any work
         card = evaluate_entry(
             entry, folder, trials, not quiet, lambda m: out.print(m), update_entry
         )
-    except (ConfigError, FileNotFoundError) as exc:
+    except (ConfigError, FileNotFoundError, OutputError, MethodOutputError) as exc:
         raise fail(str(exc)) from None
     out.print(card.read_text(), soft_wrap=True, markup=False, highlight=False)
-    out.print(f"wrote {card}" + (f" and {entry.folder}/card.md" if update_entry else ""))
+    written = f"{folder / 'card.md'}" + (f" and {card}" if update_entry else "")
+    out.print(f"wrote {written}")
 
 
 @zoo_app.command("promote")

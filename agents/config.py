@@ -17,6 +17,7 @@
     hyperparams: {}            # keyword arguments of the SB3 algorithm
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
     reward_scale: 1.0          # SB3: the learner sees reward × this (evaluations do not)
+    frame_stack: 1             # SB3: the policy sees its last k observations (VecFrameStack)
 
 :func:`load_train_config` checks everything a training run will use before any work, and
 reports every problem at once, one line each (``FILE: dotted.field: message``): the schema,
@@ -46,7 +47,8 @@ from qkf.core.config import ConfigError, StrictModel
 HEADER = "invalid training config"
 
 RESERVED_HYPERPARAMS = {
-    "policy": "set by qkf train (MlpPolicy); network options go in policy_kwargs",
+    "policy": "set by qkf train (the agent's policy: MlpPolicy, MlpLstmPolicy for "
+    "recurrent_ppo); network options go in policy_kwargs",
     "env": "set by qkf train (the environment of the config)",
     "seed": "set by qkf train from the config's seed",
     "device": "set by qkf train (cpu)",
@@ -83,6 +85,7 @@ class TrainConfig(StrictModel):
     tabular: dict[str, Any] = Field(default_factory=dict)
     torch_threads: Annotated[int, Field(ge=1)] = 1  # 2-core machines: the env wants the other
     reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # SB3 agents learn from reward × this
+    frame_stack: Annotated[int, Field(ge=1)] = 1  # SB3: the policy sees the last k observations
 
     @field_validator("agent")
     @classmethod
@@ -148,7 +151,11 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
                 "hyperparams: the tabular agent takes no SB3 hyperparameters (use tabular:)"
             )
         problems += _tabular_problems(cfg.tabular, env.observation_size)
+        if cfg.frame_stack != 1:
+            problems.append("frame_stack: the tabular agent sees one observation (must be 1)")
     else:
+        if algo.recurrent and cfg.frame_stack != 1:
+            problems.append(f"frame_stack: {cfg.agent} keeps its own memory (an LSTM); must be 1")
         if cfg.tabular:
             problems.append(f"tabular: only the tabular agent reads it, not {cfg.agent}")
         problems += _hyperparam_problems(algorithm_class(cfg.agent), cfg.hyperparams)

@@ -14,14 +14,16 @@ period; everything else is the filter of every other method, run on the same sim
 
 from __future__ import annotations
 
+import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from agents.algorithms import algorithm_class
-from agents.config import load_train_config
+from agents.algorithms import ALGORITHMS, algorithm_class
+from agents.config import TrainConfig, load_train_config
 from envs import ENVIRONMENTS
 from envs.common import ActionMap
 from envs.transfer_alignment import BatchedEpisodes
@@ -33,13 +35,27 @@ from qkf.transfer_alignment.scenario import ScenarioData
 
 
 class Policy:
-    """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, size))``."""
+    """A saved agent (``model.npz``: tabular, ``model.zip``: SB3): ``act(obs (N, size))``.
+
+    It acts on N episodes that run in step, as it was trained: with ``frame_stack: k`` it sees
+    its last k observations (oldest first, zeros before the first, as SB3's
+    ``VecFrameStack``); a recurrent agent (``recurrent_ppo``) carries its LSTM state from one
+    call to the next. :meth:`reset` starts new episodes (the first :meth:`act` does it too).
+    """
 
     def __init__(self, path: str | Path) -> None:
         path = _model_file(path)
         # any scenario will do: the training one may be a path relative to elsewhere
         self.cfg = load_train_config(path.parent / "config.yaml", check_scenario=False)
+        self.recurrent = ALGORITHMS[self.cfg.agent].recurrent
+        self.obs_size = ENVIRONMENTS[self.cfg.env].observation_size
+        self.frame_stack = self.cfg.frame_stack
+        if path.suffix == ".zip":
+            _check_saved_model(path, self.cfg, self.obs_size * self.frame_stack)
         self._model: Any = None  # SB3's predict() interface, which the tabular agent shares
+        self._stacked: np.ndarray | None = None  # (N, size · k) the stacked observations
+        self._state: Any = None  # the LSTM state of a recurrent policy
+        self._starts = np.ones(0, dtype=bool)
         try:
             if path.suffix == ".npz":
                 from agents.tabular import TabularQAgent
@@ -53,9 +69,28 @@ class Policy:
                 f"{path}: not a readable {self.cfg.agent} model (saved by qkf train?): {what}"
             ) from None
 
+    def reset(self, n: int) -> None:
+        """Start n new episodes: empty frame stack, fresh LSTM state."""
+        self._stacked = np.zeros((n, self.obs_size * self.frame_stack), dtype=np.float32)
+        self._state = None
+        self._starts = np.ones(n, dtype=bool)
+
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """The greedy actions for observations (N, size)."""
-        action, _ = self._model.predict(obs, deterministic=True)
+        """The greedy actions for the N episodes' newest observations (N, size)."""
+        obs = np.asarray(obs, dtype=np.float32)
+        if self._stacked is None or self._stacked.shape[0] != obs.shape[0]:
+            self.reset(obs.shape[0])
+        assert self._stacked is not None
+        if self.frame_stack > 1:  # SB3's VecFrameStack: shift left, newest last
+            self._stacked = np.concatenate([self._stacked[:, self.obs_size :], obs], axis=1)
+            obs = self._stacked
+        if self.recurrent:
+            action, self._state = self._model.predict(
+                obs, state=self._state, episode_start=self._starts, deterministic=True
+            )
+            self._starts = np.zeros(obs.shape[0], dtype=bool)
+        else:
+            action, _ = self._model.predict(obs, deterministic=True)
         return np.asarray(action)
 
 
@@ -73,6 +108,7 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
         cfg, data.n_trials, "likelihood", policy.cfg.period_s, observation=observation
     )
     obs = core.load(data)
+    policy.reset(data.n_trials)
     est = np.full((data.n_trials, data.n_epochs, 16), np.nan)
     kappa_log = []
     for k0 in range(0, data.n_epochs, core.period):
@@ -131,6 +167,34 @@ def _model_file(path: str | Path) -> Path:
             "action type and decision period)"
         )
     return model
+
+
+def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
+    """``ConfigError`` when the SB3 zip is not what ``config.yaml`` says: a recurrent policy
+    saved beside a config of a feed-forward agent (or the reverse), or an observation of
+    another size than the config's environment version gives (a policy trained on another
+    version). Read from the zip's ``data`` record, before torch loads anything."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            data = json.loads(z.read("data"))
+        module = str(data["policy_class"]["__module__"])
+        shape = data["observation_space"]["_shape"]
+    except (OSError, KeyError, TypeError, ValueError, zipfile.BadZipFile):
+        return  # not SB3's layout: the load below reports it
+    saved_recurrent = "recurrent" in module
+    if saved_recurrent != ALGORITHMS[cfg.agent].recurrent:
+        held = "a recurrent (LSTM) policy" if saved_recurrent else "a feed-forward policy"
+        raise ConfigError(
+            f"{path}: holds {held}, but config.yaml beside it says agent {cfg.agent} "
+            f"({'recurrent' if ALGORITHMS[cfg.agent].recurrent else 'feed-forward'}); "
+            "the model and its config do not belong together"
+        )
+    if list(shape) != [obs_size]:
+        raise ConfigError(
+            f"{path}: expects observations of {list(shape)} entries, but config.yaml says env "
+            f"{cfg.env} with frame_stack {cfg.frame_stack} ({obs_size} entries): a policy "
+            "trained on another environment version"
+        )
 
 
 def policy_method(path: str) -> PolicyMethod:

@@ -2,10 +2,11 @@
 
 One package per environment, on the estimation problem it is built on, and what they share:
 
-* :mod:`envs.transfer_alignment`: ``qkf/TransferAlignment-v0``, ``-v1``, ``-v2``, the agent
-  picks the transfer-alignment filter's process-noise factor κ every decision period; the three
-  differ only in the observation (v0 and v1 stay as they were, for the policies trained on
-  them). Single environment, batched Gymnasium vector environment, Stable-Baselines3 adapter.
+* :mod:`envs.transfer_alignment`: ``qkf/TransferAlignment-v0`` … ``-v3`` and
+  ``qkf/TransferAlignmentTimed-v3``, the agent picks the transfer-alignment filter's
+  process-noise factor κ every decision period; they differ only in the observation (the older
+  ones stay as they were, for the policies trained on them; ``Timed-v3`` is v3 with the clock,
+  an ablation). Single environment, batched Gymnasium vector environment, Stable-Baselines3 adapter.
 * :mod:`envs.redundant_gyros`: ``qkf/RedundantGyroCalibration-v0``, the same question asked
   of the redundant-gyro calibration UKF (docs/redundant_gyros.md).
 * :mod:`envs.common`: the κ action map, observation bounds, rendering, scenario checks and
@@ -26,6 +27,8 @@ from envs.transfer_alignment import (
     ENV_ID,
     ENV_ID_V1,
     ENV_ID_V2,
+    ENV_ID_V3,
+    ENV_ID_V3_TIMED,
     OBSERVATIONS,
     REWARDS,
     BatchedEpisodes,
@@ -48,6 +51,8 @@ __all__ = [
     "ENV_ID",
     "ENV_ID_V1",
     "ENV_ID_V2",
+    "ENV_ID_V3",
+    "ENV_ID_V3_TIMED",
     "GYRO_ENV_ID",
     "GYRO_REWARDS",
     "OBSERVATIONS",

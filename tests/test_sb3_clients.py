@@ -20,7 +20,7 @@ import yaml
 from gymnasium.utils.env_checker import check_env
 
 import envs
-from envs import ENV_ID_V2, ENVIRONMENTS, GYRO_ENV_ID
+from envs import ENV_ID_V2, ENV_ID_V3, ENVIRONMENTS, GYRO_ENV_ID
 from envs.common.render import FRAME_HEIGHT_PX, FRAME_WIDTH_PX, RENDER_FPS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,20 +183,24 @@ def test_subproc_vec_env_trains_ppo(start_method: str) -> None:
 
 
 def test_zoo_hyperparameters_mirror_the_training_presets() -> None:
-    """Every registered environment has an entry, and the v2 entry is the preset it names."""
+    """Every registered environment has an entry, and the v2 and v3 entries are the presets
+    they name."""
     zoo = yaml.safe_load(ZOO_HYPERPARAMS.read_text())
     assert set(zoo) == set(ALL_IDS)
-    preset = yaml.safe_load(
-        (ROOT / "configs" / "training" / "train_ppo_snap_random_v2.yaml").read_text()
-    )
-    v2 = zoo[ENV_ID_V2]
-    assert {k: v2[k] for k in preset["hyperparams"]} == preset["hyperparams"]
-    assert v2["n_envs"] == preset["n_envs"] and v2["n_timesteps"] == preset["total_steps"]
-    for key in ("scenario", "action_type", "reward", "period_s"):
-        assert v2["env_kwargs"][key] == preset[key]
-    assert v2["vec_env_wrapper"] == [
-        {"agents.common.vec_env.ScaledReward": {"scale": preset["reward_scale"]}}
-    ]
+    for env_id, name in [
+        (ENV_ID_V2, "train_ppo_snap_random_v2"),
+        (ENV_ID_V3, "train_ppo_mixed_v3"),
+    ]:
+        preset = yaml.safe_load((ROOT / "configs" / "training" / f"{name}.yaml").read_text())
+        entry = zoo[env_id]
+        assert {k: entry[k] for k in preset["hyperparams"]} == preset["hyperparams"]
+        assert entry["n_envs"] == preset["n_envs"] and entry["n_timesteps"] == preset["total_steps"]
+        assert entry.get("frame_stack", 1) == preset.get("frame_stack", 1)
+        for key in ("scenario", "action_type", "reward", "period_s"):
+            assert entry["env_kwargs"][key] == preset[key]
+        assert entry["vec_env_wrapper"] == [
+            {"agents.common.vec_env.ScaledReward": {"scale": preset["reward_scale"]}}
+        ]
 
 
 @pytest.mark.slow  # trains PPO through RL Zoo3
@@ -253,7 +257,7 @@ def test_readme_rl_example_runs_without_warnings() -> None:
     """The README shows the current version: no "out of date" warning (or any other)."""
     text = (ROOT / "README.md").read_text()
     (block,) = [b for b in re.findall(r"```python\n(.*?)```", text, flags=re.S) if "gym." in b]
-    assert ENV_ID_V2 in block
+    assert ENV_ID_V3 in block
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         exec(compile(block.replace("num_envs=64", "num_envs=2"), "README.md", "exec"), {})

@@ -144,4 +144,6 @@ def test_shipped_entries_load() -> None:
     assert "ppo_snap_random" in names
     for e in list_entries():
         assert len(e.spec.seeds) >= 3  # intervals across training seeds
-        assert e.spec.judge.seed != e.train_cfg.eval.seed
+        judged = [c.seed for c in e.spec.cases()]
+        judged += [e.spec.families.seed] if e.spec.families is not None else []
+        assert judged and e.train_cfg.eval.seed not in judged

@@ -6,6 +6,10 @@ registry (:data:`envs.ENVIRONMENTS`): the environment's own batched SB3 adapter 
 here knows an environment by name. :class:`ScaledReward` multiplies the reward the learner sees
 (``reward_scale``); RL Zoo3 uses it too (``agents/rl_zoo3/ppo.yml``).
 
+``frame_stack: k`` wraps the environment in SB3's ``VecFrameStack``: the policy sees its last
+k observations side by side, oldest first, zeros before an episode's first
+(:class:`agents.policy.Policy` stacks the same way when it acts on the benchmark's trials).
+
 Seeding: sub-environment ``i`` of ``make_vec_env(cfg, n, seed)`` draws its episodes as the
 single environment reset with seed ``seed + i`` (docs/environment.md, "Seeding").
 """
@@ -14,7 +18,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor
+from stable_baselines3.common.vec_env import (
+    DummyVecEnv,
+    VecEnv,
+    VecEnvWrapper,
+    VecFrameStack,
+    VecMonitor,
+)
 
 from envs import ENVIRONMENTS
 from qkf.core.registry import load_object
@@ -41,6 +51,8 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
 
         env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
     env.seed(seed)
+    if cfg.frame_stack > 1:  # the policy sees its last k observations, oldest first
+        env = VecFrameStack(env, cfg.frame_stack)
     return env
 
 

@@ -37,7 +37,7 @@ from stable_baselines3.common.callbacks import (
 )
 from stable_baselines3.common.vec_env import VecEnv
 
-from agents.algorithms import algorithm_class
+from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.common.vec_env import ScaledReward, make_vec_env, monitored
 from agents.config import HEADER
 from agents.training.plan import TrainPlan, resume_seed
@@ -185,7 +185,7 @@ def _build(plan: TrainPlan, algo: Any, env: VecEnv, seed: int) -> Any:
         return model
     try:
         return algo(
-            "MlpPolicy",
+            ALGORITHMS[cfg.agent].policy,
             env,
             seed=cfg.seed,
             device="cpu",

@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from agents.zoo.entry import ZooEntry
-from agents.zoo.summary import read_summary
+from agents.zoo.summary import LEVEL, read_summary
 from envs import ENVIRONMENTS
 from qkf.core.io import atomic_write_text
+
+FAMILIES_SUMMARY = "zoo_families.csv"
 
 
 def _training_lines(entry: ZooEntry) -> list[str]:
@@ -80,6 +82,8 @@ def _fmt(r: dict[str, str]) -> str:
 def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     path = evaluation / "zoo_summary.csv"
     if not path.is_file():
+        if (evaluation / FAMILIES_SUMMARY).is_file():
+            return []
         return ["## Evaluation", "", f"Not judged yet: `qkf zoo evaluate {entry.name}`.", ""]
     rows = read_summary(path)
     lines = [
@@ -123,11 +127,77 @@ def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     return lines
 
 
+def _num(text: str, digits: int = 3) -> str:
+    value = float(text)
+    return f"{value:.{digits}f}" if np.isfinite(value) else "–"
+
+
+def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
+    """The families section of the card, from ``evaluation/zoo_families.csv``
+    (:func:`agents.zoo.summary.families_summary`): per family the IQM line and a table of the
+    baselines with the probability of improvement and the shipped seed's paired ratio."""
+    path = evaluation / FAMILIES_SUMMARY
+    if not path.is_file():
+        return []
+    rows = read_summary(path)
+    if not rows:
+        return []
+    seed, pct = rows[0]["seed"], f"{100 * LEVEL:g} %"
+    shipped = next((r["policy"] for r in rows if r["quantity"] == "ratio"), "")
+    lines = [
+        "## Scenario families",
+        "",
+        f"Command: `qkf zoo evaluate {entry.name}`: `qkf study families` (benchmark seed "
+        f"{seed}, a judging seed) with the baselines and `{entry.name}#SEED=policy:"
+        f"seed_SEED/{entry.model_name()}` of every training seed on the same trials; the "
+        f"study's own tables are in `evaluation/families_seed{seed}.md`. Metric: "
+        "`state_settled` (the settled RMS over the 15 states, each in units of its final "
+        "nominal CRLB). Score per trial: RMS_kf-tuned / RMS_policy (above 1: better). IQM: "
+        f"rliable's interquartile mean over training seeds × trials with its stratified "
+        f"bootstrap {pct} interval. P(improve): the probability that the policy's score "
+        "exceeds the baseline's on a trial (rliable; 0.5: no difference). Ratio: RMS of the "
+        f"shipped seed's policy (`{shipped or '–'}`) ÷ the baseline's on the same trials, "
+        f"paired {pct} bootstrap interval; `better` where it lies below 1.",
+        "",
+    ]
+    for family in dict.fromkeys(r["scenario"] for r in rows):
+        mine = [r for r in rows if r["scenario"] == family]
+        iqm = next((r for r in mine if r["quantity"] == "iqm"), None)
+        lines += [f"### {family} ({mine[0]['trials']} trials)", ""]
+        if iqm is not None:
+            lines += [
+                f"IQM of RMS_kf-tuned / RMS_policy over seeds × trials: "
+                f"{_num(iqm['value'])} [{_num(iqm['lo'])}, {_num(iqm['hi'])}] "
+                f"({iqm['verdict']}).",
+                "",
+            ]
+        p_improve = {r["versus"]: r for r in mine if r["quantity"] == "p_improve"}
+        ratio = {r["versus"]: r for r in mine if r["quantity"] == "ratio"}
+        lines += [
+            f"| baseline | P(improve) | {shipped or 'shipped seed'} ÷ baseline [{pct}] |",
+            "|---|---|---|",
+        ]
+        for b in dict.fromkeys([*p_improve, *ratio]):
+            p = p_improve.get(b)
+            r = ratio.get(b)
+            cell = (
+                f"{_num(r['value'])} [{_num(r['lo'])}, {_num(r['hi'])}] {r['verdict']}" if r else ""
+            )
+            lines.append(f"| {b} | {_num(p['value'], 2) if p else '–'} | {cell} |")
+        lines.append("")
+    return lines
+
+
 def write_card(entry: ZooEntry, folder: Path | None = None) -> Path:
-    """Write ``card.md`` into ``folder`` (default: the entry's own), its judging table from
-    ``folder/evaluation/``; returns its path."""
+    """Write ``card.md`` into ``folder`` (default: the entry's own), its judging tables from
+    ``folder/evaluation/`` (``zoo_summary.csv``, ``zoo_families.csv``); returns its path."""
     folder = entry.folder if folder is None else folder
-    lines = _training_lines(entry) + _evaluation_lines(entry, folder / "evaluation")
+    evaluation = folder / "evaluation"
+    lines = (
+        _training_lines(entry)
+        + _evaluation_lines(entry, evaluation)
+        + _families_lines(entry, evaluation)
+    )
     path = folder / "card.md"
     atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
     return path

@@ -7,25 +7,32 @@
   ``seed_<s>/``; the seed with the best last evaluation is copied to the entry's top.
 * **evaluate**: for each judging case one benchmark runs the baselines, the oracle and the
   policy of *every* training seed on the same trials (benchmark seeds, disjoint from the
-  environment seeds the agents were trained on); the bench outputs, the per-trial tables, the
-  summary (:mod:`agents.zoo.summary`) and the card go to the work folder. The shipped entry
-  (``evaluation/``, ``card.md``, tracked in git) changes only with ``update_entry``
-  (``--update-entry``), so a quick ``--trials 2`` look never rewrites the published judgement.
+  environment seeds the agents were trained on); with a ``families:`` section, the families
+  study (``qkf study families``, :mod:`qkf.transfer_alignment.study`) runs the baselines and
+  ``NAME#SEED=policy:…`` of every training seed into ``WORK/families/``. The bench outputs,
+  the per-trial tables, the summaries (:mod:`agents.zoo.summary`) and the card go to the work
+  folder. The shipped entry (``evaluation/``, ``card.md``, tracked in git) changes only with
+  ``update_entry`` (``--update-entry``), so a quick ``--trials 2`` look never rewrites the
+  published judgement. Refused before any work (:func:`check_entry`): a seed of ``zoo.yaml``
+  without a model, or one trained on another environment than the entry's training config.
 * **promote**: copy an entry's shipped policy and card to ``agents/zoo/best/``.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from agents.config import load_train_config
 from agents.training import plan_training, run_training
 from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
-from agents.zoo.entry import ZOO_DIR, JudgeCase, ZooEntry
-from agents.zoo.summary import judge_summary, write_summary
-from qkf.core.io import atomic_write_bytes
+from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry
+from agents.zoo.summary import LEVEL, families_summary, judge_summary, write_summary
+from qkf.core.config import ConfigError, read_yaml_mapping
+from qkf.core.io import OutputError, atomic_write_bytes
 
 PROMOTED = ("config.yaml", "card.md", "SOURCE")
 """What ``promote`` writes into ``best/`` besides the model."""
@@ -34,8 +41,116 @@ SEED_FILES = ("config.yaml", "training.json")
 ``eval/evaluations.npz`` as ``evaluations.npz``)."""
 
 
+FAMILIES_DIR = "families"
+"""The families study's folder in the work folder (``WORK/families/``)."""
+EVALUATION_FILES = (
+    "*_trials.csv", "*_summary.md", "zoo_summary.csv", "zoo_families.csv",
+    "families_seed*.md", "families_seed*.csv",
+)  # fmt: skip
+"""What ``evaluate`` writes into ``evaluation/`` (an earlier run's are removed first, so that
+the folder and the card describe one judgement)."""
+
+
 def _copy(src: Path, dst: Path) -> None:
     atomic_write_bytes(dst, src.read_bytes())
+
+
+def check_entry(entry: ZooEntry) -> None:
+    """Refuse (``ConfigError``) an entry that cannot be judged as ``zoo.yaml`` says: a training
+    seed without its model (``seed_<s>/model.*``), or without the ``config.yaml`` beside it,
+    or one whose config names another environment (``env:``, its version included) than the
+    entry's training config. Reads files only."""
+    missing = entry.untrained_seeds()
+    if missing:
+        listed = ", ".join(str(s) for s in missing)
+        raise ConfigError(
+            f"{entry.folder}: training seed{'s' if len(missing) > 1 else ''} {listed} of "
+            f"zoo.yaml ha{'ve' if len(missing) > 1 else 's'} no model "
+            f"(seed_<s>/{entry.model_name()} missing); run qkf zoo train {entry.name} first "
+            f"(--seeds {','.join(str(s) for s in missing)} trains only those)"
+        )
+    want = entry.train_cfg.env
+    for s in entry.spec.seeds:
+        path = entry.seed_dir(s) / "config.yaml"
+        if not path.is_file():
+            raise ConfigError(
+                f"{path}: missing (the exact training config, copied beside the model by "
+                f"qkf zoo train); run qkf zoo train {entry.name} --seeds {s}"
+            )
+        env = read_yaml_mapping(path, "training config").get("env")
+        if env != want:
+            raise ConfigError(
+                f"{path}: env: {env} but the entry's training config ({entry.spec.train}) "
+                f"trains on {want}: seed {s} is a policy of another environment version; "
+                f"retrain it (qkf zoo train {entry.name} --seeds {s}) or fix zoo.yaml's train:"
+            )
+
+
+def family_policies(entry: ZooEntry) -> list[str]:
+    """``NAME#SEED=policy:PATH`` of every trained seed: the labels the families study pools
+    over training seeds (:func:`qkf.transfer_alignment.families.seed_statistics`)."""
+    return [f"{entry.name}#{s}=policy:{entry.seed_model(s)}" for s in entry.trained_seeds()]
+
+
+@dataclass(frozen=True)
+class FamiliesRun:
+    """The families study of an entry, as ``load_study``/``run_study`` take it."""
+
+    families: list[str]
+    baselines: list[str]  # replace the study's methods
+    policies: list[str]  # added after them: NAME#SEED=policy:PATH
+    seed: int  # benchmark seed
+    trials: int  # per family
+    sets: list[str]  # --set overrides of every family
+
+
+def families_run(entry: ZooEntry, trials: int | None) -> FamiliesRun:
+    """The entry's families study; ``trials`` replaces the section's own."""
+    fam = entry.spec.families
+    if fam is None:
+        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: no families: section")
+    return FamiliesRun(
+        list(fam.families), list(fam.baselines), family_policies(entry), fam.seed,
+        trials or fam.trials, list(fam.overrides),
+    )  # fmt: skip
+
+
+def check_families(entry: ZooEntry, work: Path, trials: int | None) -> None:
+    """Everything the families study would refuse, checked before any work (``ConfigError``):
+    the entry's name as a method label, the study (families, methods, seed, every family's
+    config with the overrides), the workload, and ``WORK/families/`` (empty, or an earlier
+    study, which the run replaces whole at its end)."""
+    from qkf.transfer_alignment.config import check_workload
+    from qkf.transfer_alignment.study import load_study, prepare_output, study_cases
+
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", entry.name):
+        raise ConfigError(
+            f"{entry.folder}: the entry's name {entry.name!r} labels its policies in the "
+            "families study (NAME#SEED); use letters, digits, '_', '.', '-' only"
+        )
+    run = families_run(entry, trials)
+    where = f"{entry.folder / 'zoo.yaml'}: families"
+    try:
+        study, configs = load_study(
+            FAMILIES_STUDY, run.sets, families=run.families, methods=run.policies,
+            seed=run.seed, base_methods=run.baselines,
+        )  # fmt: skip
+        for case, cfg in zip(study_cases(study), configs, strict=True):
+            try:
+                check_workload(cfg, run.trials)
+            except ConfigError as exc:
+                raise ConfigError(f"{case.label}: {exc}") from None
+            if cfg.run.bootstrap.level != LEVEL:  # the card states the zoo's level
+                raise ConfigError(
+                    f"{case.label}: run.bootstrap.level: {cfg.run.bootstrap.level:g}; the "
+                    f"zoo reports {100 * LEVEL:g} % intervals (leave it at {LEVEL:g})"
+                )
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    try:
+        prepare_output(work / FAMILIES_DIR, resume=False, overwrite=True)
+    except OutputError as exc:
+        raise ConfigError(f"--work: {exc}") from None
 
 
 def train_entry(
@@ -91,6 +206,40 @@ def evaluate_case(
     return folder
 
 
+def evaluate_families(
+    entry: ZooEntry,
+    work: Path,
+    trials: int | None,
+    progress: bool,
+    say: Callable[[str], None] = print,
+) -> Path:
+    """The entry's families study (``qkf study families`` with the entry's families, trials,
+    seed, its baselines as the methods and ``NAME#SEED=policy:PATH`` per trained seed) into
+    ``WORK/families/`` (an earlier one there is replaced whole at the end); returns it."""
+    from qkf.transfer_alignment.study import CaseRun, run_study
+
+    run = families_run(entry, trials)
+    out = work / FAMILIES_DIR
+
+    def on_start(i: int, n: int, case: CaseRun) -> None:
+        say(f"family {i}/{n}: {case.label}")
+
+    run_study(
+        FAMILIES_STUDY, out, progress, resume=False, overwrite=True, trials=run.trials,
+        sets=run.sets, on_start=on_start, families=run.families, extra_methods=run.policies,
+        seed=run.seed, base_methods=run.baselines,
+    )  # fmt: skip
+    return out
+
+
+def _clear(folder: Path) -> None:
+    """Remove what an earlier ``evaluate`` wrote into ``folder`` (:data:`EVALUATION_FILES`)."""
+    for pattern in EVALUATION_FILES:
+        for path in folder.glob(pattern):
+            if path.is_file():
+                path.unlink()
+
+
 def evaluate_entry(
     entry: ZooEntry,
     work: Path,
@@ -99,27 +248,52 @@ def evaluate_entry(
     say: Callable[[str], None] = print,
     update_entry: bool = False,
 ) -> Path:
-    """Judge every trained seed on every case; writes ``evaluation/`` and ``card.md`` into the
-    work folder, and with ``update_entry`` into the entry as well. Returns the card's path."""
+    """Judge every trained seed on every case and, with a ``families:`` section, on the
+    scenario families; writes ``evaluation/`` and ``card.md`` into the work folder, and with
+    ``update_entry`` into the entry as well. Returns the card's path. ``trials`` replaces the
+    trials of every case and of the families. Refused before any work (``ConfigError``): see
+    :func:`check_entry` and :func:`check_families`."""
     if not entry.trained_seeds():
         raise FileNotFoundError(f"{entry.folder}: no trained seed (run qkf zoo train first)")
-    rows = []
+    check_entry(entry)
+    fam = entry.spec.families
+    if fam is not None:
+        check_families(entry, work, trials)
     dst = work / "evaluation"
     dst.mkdir(parents=True, exist_ok=True)
-    for case in entry.spec.cases():
-        say(f"judging on {case.scenario}, benchmark seed {case.seed}")
-        folder = evaluate_case(entry, case, work, trials, progress)
-        stem = f"{Path(case.scenario).stem}_seed{case.seed}"
-        _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
-        _copy(folder / "summary.md", dst / f"{stem}_summary.md")
-        rows += judge_summary(entry, case, folder / "trials.csv")
-    write_summary(rows, dst / "zoo_summary.csv")
+    _clear(dst)
+    if entry.spec.cases():
+        rows = []
+        for case in entry.spec.cases():
+            say(f"judging on {case.scenario}, benchmark seed {case.seed}")
+            folder = evaluate_case(entry, case, work, trials, progress)
+            stem = f"{Path(case.scenario).stem}_seed{case.seed}"
+            _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
+            _copy(folder / "summary.md", dst / f"{stem}_summary.md")
+            rows += judge_summary(entry, case, folder / "trials.csv")
+        write_summary(rows, dst / "zoo_summary.csv")
+    if fam is not None:
+        from qkf.transfer_alignment.study import case_folder
+
+        say(f"judging on the families {', '.join(fam.families)}, benchmark seed {fam.seed}")
+        study = evaluate_families(entry, work, trials, progress, say)
+        for family in fam.families:
+            _copy(
+                study / case_folder(family) / "trials.csv",
+                dst / f"families_{family}_seed{fam.seed}_trials.csv",
+            )
+        _copy(study / "families.md", dst / f"families_seed{fam.seed}.md")
+        _copy(study / "families.csv", dst / f"families_seed{fam.seed}.csv")
+        rows = families_summary(entry, study, list(fam.families), entry.selected_seed())
+        write_summary(rows, dst / "zoo_families.csv")
     card = write_card(entry, work)
     if update_entry:
         shipped = entry.folder / "evaluation"
         shipped.mkdir(exist_ok=True)
+        _clear(shipped)
         for src in sorted(dst.iterdir()):
-            _copy(src, shipped / src.name)
+            if src.is_file():
+                _copy(src, shipped / src.name)
         card = write_card(entry)
     return card
 
@@ -141,4 +315,15 @@ def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
     return best
 
 
-__all__ = ["evaluate_case", "evaluate_entry", "policy_methods", "promote", "train_entry"]
+__all__ = [
+    "check_entry",
+    "check_families",
+    "evaluate_case",
+    "evaluate_entry",
+    "evaluate_families",
+    "families_run",
+    "family_policies",
+    "policy_methods",
+    "promote",
+    "train_entry",
+]

@@ -14,6 +14,13 @@
       baselines: [kf, kf-tuned, sage-husa, qkf, vbakf, imm, covariance-matching, mmae]
     also:                        # further scenarios, reported the same way
       - {scenario: thermal_drift_random, seed: 7000, trials: 32, baselines: [kf, kf-tuned]}
+    families:                    # the scenario families (qkf study families), state_settled
+      families: [steady_random, thermal_snap_random]  # default: every family
+      trials: 100                # per family (default 100)
+      seed: 9000                 # a judging seed, [0, 1 000 000) (default 9000)
+      baselines: [kf, kf-tuned, clock, hindsight]   # default: the families study's methods
+
+An entry needs ``judge:`` or ``families:`` (or both).
 """
 
 from __future__ import annotations
@@ -21,13 +28,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator, model_validator
 
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
+from qkf.transfer_alignment.config import MAX_TRIALS, TUNING_SEEDS
 
 ZOO_DIR = Path(__file__).resolve().parent
 """The shipped zoo: ``agents/zoo/`` (one folder per entry, ``best/`` the promoted one)."""
@@ -47,18 +55,116 @@ class JudgeCase(StrictModel):
     oracle: bool = True  # also run the truth-tuned oracle schedule (the upper reference)
 
 
+JUDGING_SEEDS = (0, TUNING_SEEDS[0])
+"""Benchmark seeds ``[low, high)`` whose results are reported (docs/environment.md, "Seed
+ranges"): below the tuning seeds of ``TUNING_SEEDS``."""
+FAMILIES_STUDY = "families"
+"""The study preset (configs/transfer_alignment/studies/families.yaml) a ``families:`` section
+runs, and whose method list is the default baselines."""
+REFERENCE = "kf-tuned"
+"""The baseline the families scores are normalised by (RMS_kf-tuned / RMS_policy)."""
+
+
+def study_families() -> list[str]:
+    """Every scenario family (``qkf.transfer_alignment.families.FAMILIES``), in table order."""
+    from qkf.transfer_alignment.families import FAMILIES
+
+    return list(FAMILIES)
+
+
+def study_methods() -> list[str]:
+    """The method list of the families study preset: the default baselines."""
+    from qkf.core import presets
+    from qkf.core.config import read_yaml_mapping
+    from qkf.transfer_alignment.config import STUDIES
+
+    path = presets.resolve(FAMILIES_STUDY, STUDIES)
+    methods = read_yaml_mapping(path, "study").get("methods")
+    if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
+        raise ValueError(f"{path}: methods: not a list of method specs")
+    return list(methods)
+
+
+class FamiliesJudge(StrictModel):
+    """The judgement on the scenario families: ``qkf study families`` with the baselines and
+    the policy of every training seed (``NAME#SEED``) on the same trials, ``state_settled``."""
+
+    families: Annotated[list[str], Field(min_length=1)] = Field(default_factory=study_families)
+    trials: Annotated[int, Field(ge=2, le=MAX_TRIALS)] = 100  # per family
+    seed: int = 9000  # benchmark seed, in the judging range JUDGING_SEEDS
+    baselines: Annotated[list[str], Field(min_length=1)] = Field(default_factory=study_methods)
+    metric: Literal["state_settled"] = "state_settled"
+    overrides: list[str] = Field(default_factory=list)  # --set style, of every family
+
+    @field_validator("seed")
+    @classmethod
+    def _judging_seed(cls, seed: int) -> int:
+        low, high = JUDGING_SEEDS
+        if not low <= seed < high:
+            raise ValueError(
+                f"{seed} is not a judging seed: judged results use benchmark seeds in "
+                f"[{low:,}, {high:,}) (docs/environment.md, 'Seed ranges'); "
+                f"[{TUNING_SEEDS[0]:,}, {TUNING_SEEDS[1]:,}) are the tuning seeds"
+            )
+        return seed
+
+    @field_validator("families")
+    @classmethod
+    def _known_families(cls, families: list[str]) -> list[str]:
+        known = study_families()
+        unknown = [f for f in families if f not in known]
+        if unknown:
+            raise ValueError(f"{', '.join(unknown)}: not a family; known: {', '.join(known)}")
+        twice = sorted({f for f in families if families.count(f) > 1})
+        if twice:
+            raise ValueError(f"{', '.join(twice)} listed twice")
+        return families
+
+    @field_validator("baselines")
+    @classmethod
+    def _baselines(cls, baselines: list[str]) -> list[str]:
+        from qkf.transfer_alignment.families import SEED_MARK
+
+        labels = [b.partition("=")[0].strip() for b in baselines]
+        seeded = [b for b in labels if SEED_MARK in b]
+        if seeded:
+            raise ValueError(
+                f"{', '.join(seeded)}: '{SEED_MARK}' marks the training seeds of the entry's "
+                "own policy; a baseline needs a label without it"
+            )
+        twice = sorted({b for b in labels if labels.count(b) > 1})
+        if twice:
+            raise ValueError(f"{', '.join(twice)} listed twice")
+        if REFERENCE not in labels:
+            raise ValueError(
+                f"must include {REFERENCE} (the policy's score is RMS_{REFERENCE} / RMS_policy)"
+            )
+        return baselines
+
+
 class ZooSpec(StrictModel):
     description: str = ""
     train: str
     seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] = Field(
         default_factory=lambda: [0, 1, 2]
     )
-    judge: JudgeCase
+    judge: JudgeCase | None = None
     also: list[JudgeCase] = Field(default_factory=list)
+    families: FamiliesJudge | None = None
+
+    @model_validator(mode="after")
+    def _judged_somewhere(self) -> ZooSpec:
+        if self.judge is None and self.families is None:
+            raise ValueError("judge: or families: required (how the entry is judged)")
+        if self.judge is None and self.also:
+            raise ValueError("also: needs a judge: case first")
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("seeds: a training seed listed twice")
+        return self
 
     def cases(self) -> list[JudgeCase]:
-        """The main judging case first, then the others."""
-        return [self.judge, *self.also]
+        """The main judging case first, then the others (none for a families-only entry)."""
+        return [] if self.judge is None else [self.judge, *self.also]
 
 
 @dataclass(frozen=True)
@@ -88,6 +194,10 @@ class ZooEntry:
     def trained_seeds(self) -> list[int]:
         """The training seeds whose model is in the entry."""
         return [s for s in self.spec.seeds if self.seed_model(s).is_file()]
+
+    def untrained_seeds(self) -> list[int]:
+        """The training seeds of ``zoo.yaml`` whose model is not in the entry."""
+        return [s for s in self.spec.seeds if not self.seed_model(s).is_file()]
 
     def validation_score(self, seed: int) -> float:
         """Mean return of the last periodic evaluation on the held-out environment seed

@@ -1,10 +1,19 @@
-"""The judging table of a zoo entry (``evaluation/zoo_summary.csv``), from a benchmark's
-``trials.csv``: paired comparisons of every training seed's policy with every baseline, the
-share of the kf → oracle gap, and the interquartile mean over training seeds.
+"""The judging tables of a zoo entry.
 
-All intervals are paired percentile bootstraps over trials: the same resamples of trials for
-every method (:func:`qkf.core.stats.resample_counts`), so "beats" means the interval of the RMS
-ratio lies below 1.
+``evaluation/zoo_summary.csv`` (the ``judge:``/``also:`` cases), from a benchmark's
+``trials.csv``: paired comparisons of every training seed's policy with every baseline, the
+share of the kf → oracle gap, and the interquartile mean over training seeds. Its intervals are
+paired percentile bootstraps over trials: the same resamples of trials for every method
+(:func:`qkf.core.stats.resample_counts`), so "beats" means the interval of the RMS ratio lies
+below 1.
+
+``evaluation/zoo_families.csv`` (the ``families:`` section), from the case folders of a
+``qkf study families`` run: per family, rliable's IQM over training seeds × trials of the score
+RMS_kf-tuned / RMS_policy (``state_settled``; above 1 is better) with its stratified bootstrap
+interval, the probability of improvement over each baseline, and the paired ratio of the
+shipped seed's policy to the yardsticks (:data:`VERSUS`). The numbers are those of the study's
+own ``families.md`` (the same functions of :mod:`qkf.transfer_alignment.families`, the same
+bootstrap settings and seed).
 """
 
 from __future__ import annotations
@@ -28,6 +37,10 @@ from qkf.core.stats import (
 
 RESAMPLES = 2000
 LEVEL = 0.95
+VERSUS = ("kf-tuned", "clock", "glr", "alarm-burst", "hindsight")
+"""The methods the shipped seed's policy is compared with in ``zoo_families.csv`` (those
+that ran): the tuned constant κ, the tuned clock, a change detector, the alarm burst and the
+per-trial best schedule (the end of the headroom)."""
 
 
 @dataclass(frozen=True)
@@ -38,13 +51,14 @@ class JudgeRow:
     seed: int  # benchmark seed
     trials: int
     metric: str
-    policy: str  # ``<entry>:s<seed>`` or ``<entry>:IQM`` over training seeds
-    quantity: str  # rms | ratio | gap_share
-    versus: str  # the baseline of a ratio; ``kf→oracle`` for the gap share; "" for rms
+    policy: str  # ``<entry>:s<seed>``, ``<entry>:IQM``; families: ``<entry>``, ``<entry>#<seed>``
+    quantity: str  # rms | ratio | gap_share (| …_range); families: iqm | p_improve | ratio
+    versus: str  # the baseline of a ratio (iqm: kf-tuned; p_improve: the baseline);
+    # ``kf→oracle`` for the gap share; "" for rms
     value: float
-    lo: float
+    lo: float  # NaN where there is no interval (p_improve)
     hi: float
-    verdict: str  # ratio: better | worse | inconclusive; otherwise ""
+    verdict: str  # ratio: better | worse | inconclusive (iqm: of a score, above 1 better)
 
 
 def read_metric(trials_csv: Path, metric: str) -> dict[str, np.ndarray]:
@@ -113,6 +127,60 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
             rows.append(
                 row(iqm, "gap_share_range", "kf→oracle", interquartile_mean(s), s.min(), s.max())
             )
+    return rows
+
+
+def families_summary(
+    entry: ZooEntry, study: Path, families: list[str], shipped: int | None
+) -> list[JudgeRow]:
+    """The rows of ``zoo_families.csv`` from the study folder ``study`` (one case folder per
+    family, named by the family): per family, ``iqm`` (policy ``NAME``, versus ``kf-tuned``:
+    the score it is normalised by; verdict ``better``/``worse`` when the interval lies above
+    or below 1), ``p_improve`` per baseline (no interval: NaN) and the ``ratio`` of the
+    shipped seed ``NAME#SEED`` to each method of :data:`VERSUS` that ran (paired interval).
+    ``seed`` is the study's benchmark seed; the bootstrap settings are the cases' own."""
+    from qkf.core.manifest import read_manifest
+    from qkf.transfer_alignment.families import (
+        SEED_MARK,
+        seed_statistics,
+        versus_rows,
+    )
+    from qkf.transfer_alignment.report import load_bench, read_trials_csv
+    from qkf.transfer_alignment.study import case_folder
+
+    info = read_manifest(study, "study")
+    seed = int(info["seed"])
+    boot = load_bench(study / case_folder(families[0])).config.run.bootstrap  # as families.md
+    mine = f"{entry.name}{SEED_MARK}"
+    rows: list[JudgeRow] = []
+    for family in families:
+        values = read_trials_csv(study / case_folder(family))
+        n = len(next(iter(values.values())))
+        others = [m for m in values if not m.startswith(mine)]
+
+        def row(policy: str, quantity: str, versus: str, value: float, lo: float, hi: float,
+                verdict: str = "", family: str = family, n: int = n) -> JudgeRow:  # fmt: skip
+            return JudgeRow(family, seed, n, "state_settled", policy, quantity, versus, value,
+                            lo, hi, verdict)  # fmt: skip
+
+        for stat in seed_statistics(values, others, boot.level, seed=seed):
+            if stat["policy"] != entry.name:
+                continue
+            iqm, lo, hi = (float(str(stat[k])) for k in ("iqm", "iqm_lo", "iqm_hi"))
+            side = ratio_side(lo, hi)  # of a score: above 1 is better
+            rows.append(row(entry.name, "iqm", "kf-tuned", iqm, lo, hi,
+                            ("inconclusive", "better", "worse")[side]))  # fmt: skip
+            for b in others:
+                p = stat.get(f"p_improve_{b}")
+                if isinstance(p, float):
+                    rows.append(row(entry.name, "p_improve", b, p, np.nan, np.nan))
+        if shipped is None:
+            continue
+        label = f"{mine}{shipped}"
+        for v in versus_rows(family, values, [label], boot.resamples, boot.level, seed):
+            if v.other in VERSUS:
+                verdict = ("inconclusive", "worse", "better")[ratio_side(v.lo, v.hi)]
+                rows.append(row(label, "ratio", v.other, v.ratio, v.lo, v.hi, verdict))
     return rows
 
 

@@ -1,9 +1,10 @@
-"""The transfer-alignment environments ``qkf/TransferAlignment-v0``, ``-v1``, ``-v2``
-(docs/environment.md): the agent picks the calibration process-noise factor κ of the
-transfer-alignment filter (:mod:`qkf.transfer_alignment`) every decision period.
+"""The transfer-alignment environments ``qkf/TransferAlignment-v0`` … ``-v3`` and the ablation
+``qkf/TransferAlignmentTimed-v3`` (docs/environment.md): the agent picks the calibration
+process-noise factor κ of the transfer-alignment filter (:mod:`qkf.transfer_alignment`) every
+decision period.
 
-The three ids differ only in the observation (:mod:`.observations`: ``v0``, ``v1``, ``v2``);
-v0 and v1 stay as they were, for the policies trained on them. The package holds every front
+The ids differ only in the observation (:mod:`.observations`: ``v0`` … ``v3``, ``v3-time``);
+the older ones stay as they were, for the policies trained on them. The package holds every front
 end of the task over one set of batched episodes (:mod:`.episodes`): the single environment
 (:mod:`.env`), the batched Gymnasium vector environment (:mod:`.vector`, what ``gym.make_vec``
 returns) and its Stable-Baselines3 adapter (:mod:`.sb3`, imported only when used: it loads
@@ -30,7 +31,15 @@ from qkf.transfer_alignment.config import load_scenario
 ENV_ID = "qkf/TransferAlignment-v0"
 ENV_ID_V1 = "qkf/TransferAlignment-v1"
 ENV_ID_V2 = "qkf/TransferAlignment-v2"
-ENV_OBSERVATIONS = {ENV_ID: "v0", ENV_ID_V1: "v1", ENV_ID_V2: "v2"}
+ENV_ID_V3 = "qkf/TransferAlignment-v3"
+ENV_ID_V3_TIMED = "qkf/TransferAlignmentTimed-v3"
+ENV_OBSERVATIONS = {
+    ENV_ID: "v0",
+    ENV_ID_V1: "v1",
+    ENV_ID_V2: "v2",
+    ENV_ID_V3: "v3",
+    ENV_ID_V3_TIMED: "v3-time",
+}
 """The transfer-alignment environment ids and the observation each one uses."""
 
 
@@ -43,7 +52,10 @@ def check_scenario(scenario: str, overrides: Sequence[str]) -> list[str]:
 _DESCRIPTIONS = {
     "v0": "transfer alignment, the original 9-entry observation (kept for its policies)",
     "v1": "transfer alignment, the 12-entry order-one observation (kept for its policies)",
-    "v2": "transfer alignment, v1 and the age of the current change (current)",
+    "v2": "transfer alignment, v1 and the age of the current change (kept for its policies)",
+    "v3": "transfer alignment, evidence without the clock: covariance levels, NIS per block, "
+    "CUSUM, alarms, rate excitation (current)",
+    "v3-time": "transfer alignment, v3 and the elapsed fraction (the ablation of the clock)",
 }
 
 for _id, _obs in ENV_OBSERVATIONS.items():
@@ -67,6 +79,8 @@ __all__ = [
     "ENV_ID",
     "ENV_ID_V1",
     "ENV_ID_V2",
+    "ENV_ID_V3",
+    "ENV_ID_V3_TIMED",
     "ENV_OBSERVATIONS",
     "OBSERVATIONS",
     "REWARDS",

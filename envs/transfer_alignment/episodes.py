@@ -27,6 +27,7 @@ from envs.transfer_alignment.rewards import REWARDS, PeriodOutcome
 from qkf.transfer_alignment.config import Config, load_scenario
 from qkf.transfer_alignment.crlb import crlb
 from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods.base import decision_steps
 from qkf.transfer_alignment.metrics import state_errors, window_masks
 from qkf.transfer_alignment.params import FilterParams, n_epochs
@@ -83,6 +84,7 @@ class BatchedEpisodes:
         self.n_epochs = n_epochs(cfg.scenario)
         self.episode_steps = math.ceil(self.n_epochs / self.period)
         self.bound = crlb(cfg).bound
+        self.weights = state_weights(cfg)  # of state_settled, for the state_gain reward
         ne = self.n_epochs
         self.gyro = np.zeros((n, ne, 3))
         self.ads_q = np.zeros((n, ne, 4))
@@ -98,9 +100,12 @@ class BatchedEpisodes:
         self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
         self.kf = TransferAlignmentKF(self.params, n)
         self.nominal = TransferAlignmentKF(self.params, n) if self.needs_likelihood else None
-        self.reference = (
-            TransferAlignmentKF(self.params, n) if self.reward.needs_reference else None
-        )
+        # the free-running nominal-κ filter of the *_gain rewards: run over the whole episode
+        # when it starts (its errors per epoch, and its settled mean square for the relative
+        # rewards), since it does not depend on the agent
+        self.needs_reference = self.reward.needs_reference
+        self.reference_errors = np.zeros((n, ne, 15)) if self.needs_reference else None
+        self.reference_ms = np.ones(n)  # settled state_settled² of the reference, per episode
 
     def reset(self, i: int, seed: int) -> np.ndarray:
         """Draw episode ``i`` from ``seed``; returns its first observation."""
@@ -111,8 +116,7 @@ class BatchedEpisodes:
         one = TransferAlignmentKF(self.params, 1)
         one.initialize(d.ads_q[:, 0])
         self.kf.load_trial(i, one)
-        if self.reference is not None:
-            self.reference.load_trial(i, one)
+        self._run_reference(np.array([i]))
         return self._restart(np.array([i]))[0]
 
     def load(self, data: ScenarioData) -> np.ndarray:
@@ -125,9 +129,24 @@ class BatchedEpisodes:
         self.bias[:], self.calib[:] = data.bias, data.calib
         self.has_meas[:] = data.has_meas
         self.kf.initialize(data.ads_q[:, 0])
-        if self.reference is not None:
-            self.reference.initialize(data.ads_q[:, 0])
+        self._run_reference(np.arange(self.n))
         return self._restart(np.arange(self.n))
+
+    def _run_reference(self, rows: np.ndarray) -> None:
+        """The nominal-κ filter over the whole episode of ``rows``: its errors (SI) and its
+        settled mean square of ``state_settled`` (weights :attr:`weights`)."""
+        if self.reference_errors is None:
+            return
+        ref = TransferAlignmentKF(self.params, rows.size)
+        ref.initialize(self.ads_q[rows, 0])
+        rec = ref.step(
+            self.gyro[rows], self.ads_q[rows], self.ads_rate[rows], self.has_meas[rows],
+            self.nominal_kappa,
+        )  # fmt: skip
+        err = state_errors(rec.est, self.q_true[rows], self.bias[rows], self.calib[rows])
+        self.reference_errors[rows] = err
+        with np.errstate(invalid="ignore", over="ignore"):  # a diverged reference: NaN below
+            self.reference_ms[rows] = np.mean((err[:, self.settled] / self.weights) ** 2, (1, 2))
 
     def _restart(self, rows: np.ndarray) -> np.ndarray:
         """Epoch counter and κ of episodes ``rows`` back to the start; their first observations
@@ -162,9 +181,8 @@ class BatchedEpisodes:
         )
         err = state_errors(rec.est, *truth)
         ref_err = None
-        if self.reference is not None:
-            ref = self.reference.step(gyro, ads_q, ads_rate, meas, self.nominal_kappa)
-            ref_err = state_errors(ref.est, *truth)
+        if self.reference_errors is not None:
+            ref_err = self._window(self.reference_errors, k0)
         last = np.maximum(valid.sum(axis=1) - 1, 0)
         rows = np.arange(self.n)
         diverged = self.kf.diverged.copy()
@@ -188,6 +206,8 @@ class BatchedEpisodes:
             reference_errors=ref_err,
             settled=self.settled[epoch] & valid,
             settled_epochs=max(int(self.settled.sum()), 1),
+            weights=self.weights,
+            reference_ms=self.reference_ms,
         )
         reward = np.asarray(self.reward.fn(outcome), dtype=float)
         reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)

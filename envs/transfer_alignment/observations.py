@@ -18,6 +18,12 @@ agent sees).
   alarm restarts at every alarm, and a calibration change raises one at every rotation axis
   that follows it, so a memoryless policy on v1 cannot tell a fresh change from an old one
   seen again (docs/environment.md, "Observation v2").
+* ``v3`` (``qkf/TransferAlignment-v3``, 15 entries): the evidence of v2 without the clock. The
+  elapsed fraction of the episode is gone (a policy that reads it can learn a schedule, not a
+  reaction), the calibration covariance level is split into scale factor and misalignment, and
+  the windowed NIS is given per block (attitude, rate) besides the whole.
+* ``v3-time`` (``qkf/TransferAlignmentTimed-v3``, 16 entries): v3 and the elapsed fraction,
+  the ablation that measures what the clock is worth.
 
 An observation object is stateful over the N episodes of a batch: ``reset(rows, kappa_pos)``
 starts episodes ``rows`` (returning their first observations), ``__call__(view)`` returns the
@@ -46,6 +52,7 @@ from qkf.core.registry import Registry
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import FilterRecord
+from qkf.transfer_alignment.states import GROUPS
 
 # The alarm threshold (v1, v2: a period's mean NIS per row above it is an alarm) and the calm
 # that separates two changes (v2) are the config's adaptive.alarm_burst.nis_alarm and quiet_s,
@@ -273,6 +280,90 @@ class ObservationV2(ObservationV1):
         return finite_clipped(np.column_stack([obs, self._shown(age)]))
 
 
+class ObservationV3(ObservationV2):
+    """The 15-entry observation of ``qkf/TransferAlignment-v3``: evidence, no clock.
+
+    ====  ======================================================================  ============
+    Obs   Meaning                                                                 Typical
+    ====  ======================================================================  ============
+    0–3   mean ``log10(σ/σ₀)`` of the attitude, bias, scale-factor and              −3.5 … 0
+          misalignment blocks of P (the covariance levels)
+    4     ``log10`` of the period's mean attitude NIS / 3 (floor −2)               ≈ 0 ± 0.3
+    5     ``log10`` of the period's mean rate NIS / 3 (0 without rate matching)    ≈ 0; ≤ 2 events
+    6     ``log10`` of the attitude NIS / 3 over the last ``NIS_WINDOW`` periods    ≈ 0
+    7     ``log10`` of the rate NIS / 3 over the last ``NIS_WINDOW`` periods        ≈ 0
+    8     ``log10`` of the mean NIS per row over the last ``NIS_WINDOW`` periods   ≈ 0
+    9     ``log10(1 + S)``, S the CUSUM of the period's mean NIS per row           0; ≤ 2 events
+    10    ``log10(1 + t/10 s)``, t the time since the last NIS alarm (or start)    0 … 2.6
+    11    ``|ω̂|`` at the end of the period, deg/s (the rate excitation)            0.06 … 1.5
+    12    ``log10(1 + t/10 s)``, t the time since ω̂ last changed (a manoeuvre)     0 … 2.6
+    13    position of the κ in use on the action scale                             0 … 1
+    14    ``log10(1 + a/10 s)``, a the age of the current change (v2's entry 12)   0 … 3
+    ====  ======================================================================  ============
+
+    The CUSUM (9) is the one-sided GLR statistic of a rise in the NIS mean; the windowed NIS
+    per block (6, 7) tells a change the attitude sees (misalignment) from one the rate
+    matching sees (bias, scale factor).
+    """
+
+    size = 15
+    _V2_KEPT = (3, 4, 5, 6, 7, 8, 9, 11, 12)  # v2's entries after the σ blocks, minus time
+
+    def __init__(self, cfg: Config, n: int, period_s: float) -> None:
+        super().__init__(cfg, n, period_s)
+        self.window_att = np.ones((n, NIS_WINDOW))
+        self.window_rate = np.ones((n, NIS_WINDOW))
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        v2 = super().reset(rows, kappa_pos)
+        self.window_att[rows] = 1.0
+        self.window_rate[rows] = 1.0
+        zeros = np.zeros((rows.size, 4))
+        return self._assemble(zeros, v2, zeros[:, :2]).astype(np.float32)
+
+    def _assemble(self, sigmas: np.ndarray, v2: np.ndarray, windows: np.ndarray) -> np.ndarray:
+        kept = v2[:, self._V2_KEPT]
+        # order of the table: σ levels, period NIS (2), windowed NIS per block (2), the rest
+        return np.column_stack([sigmas, kept[:, :2], windows, kept[:, 2:]])
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        v2 = super().__call__(view)
+        rec = view.record
+        x_att = masked_mean(rec.nis_att, view.valid, empty=3.0) / 3.0
+        x_rate = masked_mean(rec.nis_rate, view.valid, empty=3.0) / 3.0
+        self.window_att = np.concatenate([self.window_att[:, 1:], x_att[:, None]], axis=1)
+        self.window_rate = np.concatenate([self.window_rate[:, 1:], x_rate[:, None]], axis=1)
+        windows = np.log10(
+            np.maximum(
+                np.column_stack([self.window_att.mean(axis=1), self.window_rate.mean(axis=1)]),
+                LOG_FLOOR,
+            )
+        )
+        return finite_clipped(self._assemble(block_sigma_ratios(view), v2, windows))
+
+
+class ObservationV3Timed(ObservationV3):
+    """``v3-time`` (``qkf/TransferAlignmentTimed-v3``, 16 entries): v3, then entry 15, the
+    elapsed fraction of the episode (0 … 1): the ablation of the clock."""
+
+    size = 16
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        first = super().reset(rows, kappa_pos)
+        return np.column_stack([first, np.zeros(rows.size)]).astype(np.float32)
+
+    def __call__(self, view: PeriodView) -> np.ndarray:
+        return finite_clipped(np.column_stack([super().__call__(view), view.elapsed]))
+
+
+def block_sigma_ratios(view: PeriodView) -> np.ndarray:
+    """Mean ``log10(σ/σ₀)`` of the attitude, bias, scale-factor and misalignment blocks at the
+    period's last valid epoch (N, 4)."""
+    rows = np.arange(view.last.size)
+    log_ratio = 0.5 * np.log10(view.record.var[rows, view.last] / view.p0_sigma**2)
+    return np.stack([log_ratio[:, sl].mean(axis=1) for sl in GROUPS.values()], axis=1)
+
+
 OBSERVATIONS.register(
     "v0",
     Observation(
@@ -298,5 +389,22 @@ OBSERVATIONS.register(
         ObservationV2.size,
         "v2: v1 and the age of the current change (time since the first alarm of the present "
         "run of alarms)",
+    ),
+)
+OBSERVATIONS.register(
+    "v3",
+    Observation(
+        ObservationV3,
+        ObservationV3.size,
+        "v3: P levels of the four blocks, period and windowed NIS per block, CUSUM, time since "
+        "alarm, |ω̂|, time since the rate changed, κ, age of the change (no clock)",
+    ),
+)
+OBSERVATIONS.register(
+    "v3-time",
+    Observation(
+        ObservationV3Timed,
+        ObservationV3Timed.size,
+        "v3 and the elapsed fraction of the episode (the ablation of the clock)",
     ),
 )

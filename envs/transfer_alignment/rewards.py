@@ -24,7 +24,15 @@ Built in:
   the misalignment (or all calibration) terms over the settled window (``run.settled_s`` on),
   against a free-running filter at the nominal κ (the ``kf`` method) on the same data, scaled so
   that an episode's return is ``MSE_kf − MSE_agent`` in display units² — the benchmark's
-  settled metric, squared, as a difference to ``kf``.
+  settled metric, squared, as a difference to ``kf``;
+* ``state_gain`` (truth): the same over the whole state, every state in units of its final
+  nominal CRLB (the weights of the judged metric ``state_settled``,
+  :func:`qkf.transfer_alignment.judging.state_weights`): an episode's return is
+  ``MS_kf − MS_agent`` of ``state_settled``, so a policy cannot buy one group with another;
+* ``relative_state_gain`` (truth): ``state_gain`` divided by the kf's settled mean square of
+  the whole episode (known when the episode starts: the reference does not depend on the
+  agent), so that an episode's return is ``1 − MS_agent / MS_kf`` and every episode weighs
+  the same, whatever the size of its change.
 """
 
 from __future__ import annotations
@@ -55,6 +63,8 @@ class PeriodOutcome:
     reference_errors: np.ndarray | None = None  # (N, P, 15) of the reference filter, if needed
     settled: np.ndarray | None = None  # (N, P) bool: valid epochs of the settled window
     settled_epochs: int = 1  # epochs of the run's settled window
+    weights: np.ndarray | None = None  # (15,) SI: the state_settled weights, if needed
+    reference_ms: np.ndarray | None = None  # (N,) the reference's settled state_settled²
 
     def period_mean(self, x: np.ndarray) -> np.ndarray:
         """Mean over the valid epochs of a per-epoch quantity (N, P) → (N,)."""
@@ -114,6 +124,24 @@ def settled_gain(states: slice) -> Callable[[PeriodOutcome], np.ndarray]:
     return gain
 
 
+def state_gain(o: PeriodOutcome) -> np.ndarray:
+    """Per period ``Σ_settled Σ_i ((e_ref,i / w_i)² − (e_i / w_i)²) / (15 · N_settled)``: summed
+    over an episode, ``MS_kf − MS_agent`` of the judged whole-state metric ``state_settled``
+    (w the final nominal CRLB per state)."""
+    assert o.reference_errors is not None and o.settled is not None and o.weights is not None
+    diff = np.sum((o.reference_errors / o.weights) ** 2, axis=-1) - np.sum(
+        (o.errors / o.weights) ** 2, axis=-1
+    )
+    return np.sum(np.where(o.settled, diff, 0.0), axis=1) / (o.weights.size * o.settled_epochs)
+
+
+def relative_state_gain(o: PeriodOutcome) -> np.ndarray:
+    """:func:`state_gain` over the reference's settled mean square of the whole episode: summed
+    over an episode, ``1 − MS_agent / MS_kf``; every episode weighs the same."""
+    assert o.reference_ms is not None
+    return state_gain(o) / o.reference_ms
+
+
 REWARDS.register(
     "likelihood",
     Reward(
@@ -142,6 +170,24 @@ REWARDS.register(
     Reward(
         settled_gain(CALIB),
         "settled calibration (ppm, µrad) mean-square reduction against the nominal-κ filter",
+        uses_truth=True,
+        needs_reference=True,
+    ),
+)
+REWARDS.register(
+    "state_gain",
+    Reward(
+        state_gain,
+        "settled whole-state (state_settled) mean-square reduction against the nominal-κ filter",
+        uses_truth=True,
+        needs_reference=True,
+    ),
+)
+REWARDS.register(
+    "relative_state_gain",
+    Reward(
+        relative_state_gain,
+        "state_gain over the kf's settled mean square of the episode: 1 − MS_agent / MS_kf",
         uses_truth=True,
         needs_reference=True,
     ),

@@ -393,17 +393,19 @@ def load_study(
     families: list[str] | None = None,
     methods: list[str] | None = None,
     seed: int | None = None,
+    base_methods: list[str] | None = None,
 ) -> tuple[Study, list[Config]]:
     """Read a study (a path or a preset name) and the config of each case; ``sets``
     (``dotted.key=value``) are applied to every case after the case's own. ``families``: run
-    only these families of a families study; ``methods``: added to the study's methods;
+    only these families of a families study; ``base_methods``: replace the study's methods
+    (``methods`` are added after them); ``methods``: added to the study's methods;
     ``seed``: replaces the study's seed (each recorded in the returned study).
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, STUDIES)
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
-    study = _narrow(path, study, families, methods, seed)
+    study = _narrow(path, study, families, methods, seed, base_methods)
     # a CRLB study plots the same summary columns (of the bound), so the same names apply
     if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
@@ -437,10 +439,17 @@ def _narrow(
     families: list[str] | None,
     methods: list[str] | None,
     seed: int | None,
+    base_methods: list[str] | None = None,
 ) -> Study:
-    """The study with the command line's choices applied: a families study becomes a bench
-    study over its families (each a case run from its preset)."""
+    """The study with the command line's choices applied: only the chosen families of a
+    families study, ``base_methods`` instead of its methods, ``methods`` added, the seed."""
     update: dict[str, Any] = {}
+    if base_methods is not None:
+        if study.kind == "crlb":
+            raise ConfigError(f"methods: {path} is a CRLB study; it runs no method")
+        if not base_methods:
+            raise ConfigError(f"methods: none given to replace those of {path}")
+        study = study.model_copy(update={"methods": list(base_methods)})
     if families is not None:
         if study.kind != "families":
             raise ConfigError(f"--families: {path} is a {study.kind} study, not a families study")
@@ -513,13 +522,17 @@ def run_study(
     families: list[str] | None = None,
     extra_methods: list[str] | None = None,
     seed: int | None = None,
+    base_methods: list[str] | None = None,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
     ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
     ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied to every case after
     its own (both recorded in run.json, and in each case's manifest); ``families``,
-    ``extra_methods``, ``seed``: see :func:`load_study`."""
-    study, configs = load_study(path, sets, families=families, methods=extra_methods, seed=seed)
+    ``extra_methods``, ``seed``, ``base_methods``: see :func:`load_study`."""
+    study, configs = load_study(
+        path, sets, families=families, methods=extra_methods, seed=seed,
+        base_methods=base_methods,
+    )  # fmt: skip
     out = Path(out_dir)
     n = study.trials if trials is None else trials
     methods = study.methods if study.kind != "crlb" else None
