@@ -1,21 +1,30 @@
-r"""Gymnasium environment ``qkf/RedundantGyroCalibration-v0`` (docs/redundant_gyros.md,
-"Environment").
+r"""Gymnasium environments ``qkf/RedundantGyroCalibration-v0`` and ``-v1``
+(docs/redundant_gyros.md, "Environment").
 
 The adaptive-filter question of the transfer-alignment environment, on the redundant-gyro
 problem: the UKF calibrates one isolated gyro's ``[b, λ, δ_u, δ_v]`` and the agent chooses the
 factor κ on its process noise every decision period. One episode is one realisation of the
-config's scenario (noise drawn from ``np_random`` at reset); the calibrated gyro is
-``calibration.gyro`` or the first fault's gyro, from ``calibration.start_s`` or that fault's
-time on (the FDI's choice is not the agent's question). One step is one decision period
-(``period_s``, default ``environment.period_s``); an episode has ``ceil(K / period)`` steps, K
-the calibrated epochs — fixed by the config (``env.unwrapped.episode_steps``).
+config's scenario (noise — and, with ``scenario.onset``, the onset time, step and drift — drawn
+from ``np_random`` at reset); the calibrated gyro is ``calibration.gyro``, the first fault's
+gyro or the onset's gyro, from ``calibration.start_s``, that fault's time or the start of the
+run on (the FDI's choice is not the agent's question; a drawn onset is unknown to the filter).
+One step is one decision period (``period_s``, default ``environment.period_s``); an episode
+has ``ceil(K / period)`` steps, K the calibrated epochs — fixed by the config
+(``env.unwrapped.episode_steps``).
 
-Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``), ``action_type``
-(``discrete`` | ``continuous``), ``reward`` (a name of
+Versions (``observation``): ``"v0"`` (``qkf/RedundantGyroCalibration-v0``, default scenario
+``five_gyros_s_bias``: a bias step at a known time, constant coefficients otherwise) and
+``"v1"`` (``qkf/RedundantGyroCalibration-v1``, default scenario ``five_gyros_onset_drift``: an
+onset drawn per episode with a step and a random walk of the coefficients; its observation has
+no elapsed-time entry, so a policy reacts to the evidence, not to the clock).
+
+Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``; ``None``: the
+version's default), ``action_type`` (``discrete`` | ``continuous``), ``reward`` (a name of
 :data:`~envs.redundant_gyros.rewards.GYRO_REWARDS`), ``overrides``
-(``--set`` style), ``period_s``, ``render_mode`` (``None`` or ``"rgb_array"``, as the
-transfer-alignment environment: ``render()`` draws the κ chosen so far and, over the four
-calibrated states, the RMS of the UKF's σ and of the true error, both over the prior σ₀).
+(``--set`` style), ``period_s``, ``observation`` (``"v0"`` | ``"v1"``), ``render_mode``
+(``None`` or ``"rgb_array"``, as the transfer-alignment environment: ``render()`` draws the κ
+chosen so far and, over the four calibrated states, the RMS of the UKF's σ and of the true
+error, both over the prior σ₀).
 
 =====================  ===================================================================
 Action                 Meaning
@@ -23,6 +32,8 @@ Action                 Meaning
 ``Discrete(A)``        index into ``environment.actions`` (default 11 κ, 0.01 … 100)
 ``Box(-1, 1, (1,))``   ``action_type="continuous"``: linear in ``log10 κ`` over that range
 =====================  ===================================================================
+
+Observation ``"v0"`` (9 entries):
 
 =====  ==========================================================  ===========================
 Obs    Meaning (float32; no truth)                                 Typical scale
@@ -38,9 +49,25 @@ Obs    Meaning (float32; no truth)                                 Typical scale
 8      κ position in [0, 1] on the action scale                     0 … 1
 =====  ==========================================================  ===========================
 
+Observation ``"v1"`` (8 entries: v0 without the elapsed fraction):
+
+=====  ==========================================================  ===========================
+Obs    Meaning (float32; no truth)                                 Typical scale
+=====  ==========================================================  ===========================
+0      ``log10(σ_b / σ_b0)``, the UKF's bias sd over its prior sd   −4 … 0
+1      same, λ                                                      −3 … 0
+2      same, δ_u                                                    −5 … 0
+3      same, δ_v                                                    −5 … 0
+4      mean NIS ``ν² / S`` over the period                          ~1 (jumps at an onset)
+5      log-likelihood gain over a κ = 1 copy, per step              −1 … 1
+6      ``|ω̂_H|`` of the healthy triad at the period's end, deg/s    0 … 6
+7      κ position in [0, 1] on the action scale                     0 … 1
+=====  ==========================================================  ===========================
+
 Rewards: :mod:`envs.redundant_gyros.rewards` (:data:`GYRO_REWARDS`, entry-point group
 ``qkf.gyro_rewards``). ``info`` carries the true errors at the period's end in display units
-(``errors``: b deg/s, λ, δ_u deg, δ_v deg), ``kappa``, ``t_s``, ``gyro`` and ``diverged``. A
+(``errors``: b deg/s, λ, δ_u deg, δ_v deg), ``kappa``, ``t_s``, ``gyro`` and ``diverged`` (and
+``onset_s``, the drawn onset, in a scenario with one: truth, for evaluation only). A
 filter that fails (non-finite, or a covariance that is not positive definite) ends the episode
 (``terminated=True``, reward −1000).
 """
@@ -60,12 +87,18 @@ from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_ren
 from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod
 from qkf.redundant_gyros.config import GyrosConfig, load_config
 from qkf.redundant_gyros.geometry import build_unit
-from qkf.redundant_gyros.pipeline import fault_target, setup_for
-from qkf.redundant_gyros.scenario import epochs, simulate
-from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood, triad_rate
+from qkf.redundant_gyros.pipeline import episode_inputs, fault_target, setup_for
+from qkf.redundant_gyros.scenario import epochs
+from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood
 
 OBS_SIZE = 9
-"""Entries of the observation (table above)."""
+"""Entries of the v0 observation (table above)."""
+OBS_SIZES = {"v0": OBS_SIZE, "v1": 8}
+"""Entries of the observation of each version."""
+DEFAULT_SCENARIOS = {"v0": "five_gyros_s_bias", "v1": "five_gyros_onset_drift"}
+"""The scenario of each version when none is given."""
+ELAPSED = 6
+"""Index of the elapsed fraction in the v0 observation (v1 leaves it out)."""
 GYRO_CURVES = ("UKF σ / σ₀", "|error| / σ₀")
 """The curves of the rendered frames: RMS over ``[b, λ, δ_u, δ_v]``, each over its prior sd."""
 
@@ -77,17 +110,24 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
 
     def __init__(
         self,
-        scenario: str | Path | GyrosConfig = "five_gyros_s_bias",
+        scenario: str | Path | GyrosConfig | None = None,
         action_type: Literal["discrete", "continuous"] = "discrete",
         reward: str = "likelihood",
         overrides: list[str] | None = None,
         period_s: float | None = None,
         render_mode: str | None = None,
+        observation: Literal["v0", "v1"] = "v0",
     ) -> None:
         check_render_mode(render_mode)
         if reward not in GYRO_REWARDS:
             raise ValueError(f"unknown reward {reward!r}; known: {', '.join(GYRO_REWARDS)}")
+        if observation not in OBS_SIZES:
+            raise ValueError(f"unknown observation {observation!r}; known: v0, v1")
+        self.observation = observation
+        self.obs_size = OBS_SIZES[observation]
         self.render_mode = render_mode
+        if scenario is None:
+            scenario = DEFAULT_SCENARIOS[observation]
         self.cfg = (
             scenario if isinstance(scenario, GyrosConfig) else load_config(scenario, overrides)
         )
@@ -107,7 +147,7 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         kappas = np.asarray(self.cfg.environment.actions.values())
         self.actions = ActionMap(kappas, action_type)
         self.action_space = self.actions.space
-        self.observation_space = observation_box(OBS_SIZE)
+        self.observation_space = observation_box(self.obs_size)
         self._start_pos = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
         self._started = False
         self._trace = EpisodeTrace(
@@ -122,25 +162,25 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        sc = self.cfg.scenario
         draw = int(self.np_random.integers(2**63 - 1))
-        data = simulate(self.unit, sc.body_rate, sc.faults, self.t, draw, [0])
-        s = self.target.start
-        assert data.coeffs is not None
-        self._z = data.meas[0, s:, self.setup.gyro]
-        self._rate = triad_rate(self.unit, self.setup, data.meas[0, s:])
-        self._truth = data.coeffs[s:, self.setup.gyro]
-        self._dt = np.diff(self.t[max(s - 1, 0) : s + self.n_steps])
-        if s == 0:
-            self._dt = np.concatenate([[self.t[1] - self.t[0]], self._dt])
+        ep = episode_inputs(self.cfg, self.unit, self.setup, self.target, self.t, draw)
+        self._z, self._rate, self._truth, self._dt = ep.z, ep.rate, ep.truth, ep.dt
+        self._onset_s = ep.onset_s
         self._main = CalibrationUKF(self.setup, float(self._dt[0]))
         self._nominal = CalibrationUKF(self.setup, float(self._dt[0]))
         self._k = 0
         self._started = True
         self._trace.clear()
-        obs = np.zeros(OBS_SIZE, dtype=np.float32)
-        obs[8] = self._start_pos
-        return obs, {"kappa": 1.0, "diverged": False, "gyro": self.unit.ids[self.setup.gyro]}
+        obs = np.zeros(self.obs_size, dtype=np.float32)
+        obs[-1] = self._start_pos
+        info: dict[str, Any] = {
+            "kappa": 1.0,
+            "diverged": False,
+            "gyro": self.unit.ids[self.setup.gyro],
+        }
+        if self._onset_s is not None:
+            info["onset_s"] = self._onset_s
+        return obs, info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
@@ -170,11 +210,13 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
             "t_s": float(self.t[self.target.start + k1 - 1]),
             "errors": errors[-1] / DISPLAY_SCALE,
         }
+        if self._onset_s is not None:
+            info["onset_s"] = self._onset_s
         if self.render_mode is not None:  # record only what render() will draw
             self._trace.append(info["t_s"], kappa, self._render_values(errors[-1]))
-        obs = np.zeros(OBS_SIZE, dtype=np.float32)
+        obs = np.zeros(self.obs_size, dtype=np.float32)
         if diverged:
-            obs[8] = pos
+            obs[-1] = pos
             return obs, DIVERGENCE_REWARD, True, False, info
         ll = float(np.sum(log_likelihood(nu, var)))
         # a κ = 1 copy that fails where the agent's filter does not: no gain either way
@@ -193,6 +235,8 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
             float(np.linalg.norm(self._rate[k1 - 1])),
             pos,
         ]
+        if self.observation != "v0":
+            del values[ELAPSED]
         obs = finite_clipped(np.asarray(values))
         return obs, reward, False, k1 >= self.n_steps, info
 

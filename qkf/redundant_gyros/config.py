@@ -160,11 +160,52 @@ class Fault(StrictModel):
         return self
 
 
+class OnsetStep(StrictModel):
+    """Sd of the step each coefficient of the onset's gyro takes at the onset: one normal draw
+    per episode and coefficient (0: no step)."""
+
+    bias_deg_s: NonNegativeFloat = 0.0
+    scale: NonNegativeFloat = 0.0
+    delta_u_deg: NonNegativeFloat = 0.0
+    delta_v_deg: NonNegativeFloat = 0.0
+
+
+class OnsetDriftRates(StrictModel):
+    """Random-walk intensities of the onset gyro's true coefficients, per √s: the walk's
+    variance grows as ``σ² (t − t₀)`` from its start ``t₀`` (0: no walk)."""
+
+    bias_deg_s_per_sqrt_s: NonNegativeFloat = 0.0
+    scale_per_sqrt_s: NonNegativeFloat = 0.0
+    delta_u_deg_per_sqrt_s: NonNegativeFloat = 0.0
+    delta_v_deg_per_sqrt_s: NonNegativeFloat = 0.0
+
+
+class OnsetDrift(StrictModel):
+    """An unknown fault onset and drifting coefficients of one gyro, drawn per episode
+    (docs/redundant_gyros.md, "Onset and drift"): the onset time uniform in ``onset_s``
+    (s; a draw at or after the end of the run never happens), a step of the coefficients at
+    the onset (``step``, normal sds) and a random walk of them (``drift``, per √s) from the
+    onset on (``drift_from: onset``) or from the start of the run (``start``)."""
+
+    gyro: GyroId
+    onset_s: tuple[NonNegativeFloat, NonNegativeFloat]
+    step: OnsetStep = OnsetStep()
+    drift: OnsetDriftRates = OnsetDriftRates()
+    drift_from: Literal["onset", "start"] = "onset"
+
+    @model_validator(mode="after")
+    def _range(self) -> OnsetDrift:
+        if self.onset_s[0] > self.onset_s[1]:
+            raise ValueError("onset_s: [earliest, latest] with earliest ≤ latest")
+        return self
+
+
 class Scenario(StrictModel):
     dt_s: PositiveFloat = 0.1
     duration_s: PositiveFloat = 600.0
     body_rate: BodyRate = BodyRate()
     faults: list[Fault] = Field(default_factory=list)
+    onset: OnsetDrift | None = None  # None: no drawn onset, constant coefficients
 
     @model_validator(mode="after")
     def _fits(self) -> Scenario:
@@ -351,6 +392,8 @@ class GyrosConfig(StrictModel):
             check(f"scenario.faults.{i}.gyro", f.gyro)
             if f.t_s >= self.scenario.duration_s:
                 raise ValueError(f"scenario.faults.{i}.t_s: after the end of the run")
+        if self.scenario.onset is not None:
+            check("scenario.onset.gyro", self.scenario.onset.gyro)
         if self.calibration.gyro is not None:
             check("calibration.gyro", self.calibration.gyro)
         for gid in self.calibration.triad or []:
@@ -449,4 +492,11 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return cfg
 
 
-__all__ = ["ConfigError", "Fault", "GyrosConfig", "check_workload", "load_config"]
+__all__ = [
+    "ConfigError",
+    "Fault",
+    "GyrosConfig",
+    "OnsetDrift",
+    "check_workload",
+    "load_config",
+]

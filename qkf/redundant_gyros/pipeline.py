@@ -20,7 +20,13 @@ from qkf.redundant_gyros.fdi import Detectors, FdiResult, run_fdi
 from qkf.redundant_gyros.geometry import GyroUnit, build_unit
 from qkf.redundant_gyros.scenario import GyroData, epochs, first_epoch, simulate
 from qkf.redundant_gyros.threecross import NO_GYRO
-from qkf.redundant_gyros.ukf import CalibrationRecord, UkfSetup, calibrate, make_setup
+from qkf.redundant_gyros.ukf import (
+    CalibrationRecord,
+    UkfSetup,
+    calibrate,
+    make_setup,
+    triad_rate,
+)
 
 
 @dataclass(frozen=True)
@@ -64,15 +70,23 @@ def choose_target(cfg: GyrosConfig, unit: GyroUnit, fdi: FdiResult, t: np.ndarra
 
 def fault_target(cfg: GyrosConfig, unit: GyroUnit, t: np.ndarray) -> Target:
     """The calibration a simulation study runs without the FDI deciding: the configured gyro
-    and start, else the first fault's gyro from its time on. ``ValueError`` if there is
-    neither."""
+    and start, else the first fault's gyro from its time on, else the onset's gyro
+    (``scenario.onset``) from the start of the run (its onset time is drawn per episode and
+    unknown to the filter). ``ValueError`` if there is none."""
     cal = cfg.calibration
     faults = cfg.scenario.faults
-    if cal.gyro is None and not faults:
+    onset = cfg.scenario.onset
+    if cal.gyro is None and not faults and onset is None:
         raise ValueError(
             "no gyro to calibrate: the scenario has no fault and calibration.gyro is not set"
         )
-    gyro = unit.index(cal.gyro if cal.gyro is not None else faults[0].gyro)
+    if cal.gyro is not None:
+        gyro = unit.index(cal.gyro)
+    elif faults:
+        gyro = unit.index(faults[0].gyro)
+    else:
+        assert onset is not None
+        gyro = unit.index(onset.gyro)
     start_s = cal.start_s if cal.start_s is not None else (faults[0].t_s if faults else 0.0)
     start = min(first_epoch(t, start_s), t.size - 2)
     return Target(gyro, start, _triad(cfg, unit), "scenario")
@@ -95,9 +109,10 @@ class RunResult:
     @property
     def truth(self) -> np.ndarray | None:
         """True coefficients of the calibrated gyro over the calibrated epochs (K, 4)."""
-        if self.data.coeffs is None or self.target is None:
+        coeffs = self.data.trial_coeffs(0)
+        if coeffs is None or self.target is None:
             return None
-        return np.asarray(self.data.coeffs[self.target.start :, self.target.gyro])
+        return np.asarray(coeffs[self.target.start :, self.target.gyro])
 
 
 def simulate_run(cfg: GyrosConfig, seed: int | None = None) -> GyroData:
@@ -105,7 +120,45 @@ def simulate_run(cfg: GyrosConfig, seed: int | None = None) -> GyroData:
     unit = build_unit(cfg)
     sc = cfg.scenario
     t = epochs(sc.duration_s, sc.dt_s)
-    return simulate(unit, sc.body_rate, sc.faults, t, cfg.run.seed if seed is None else seed, [0])
+    s = cfg.run.seed if seed is None else seed
+    return simulate(unit, sc.body_rate, sc.faults, t, s, [0], sc.onset)
+
+
+@dataclass(frozen=True)
+class EpisodeInputs:
+    """What one calibration episode feeds its UKF and judges it by, over the K calibrated
+    epochs ``target.start …`` of trial 0 of a simulation (internal units)."""
+
+    z: np.ndarray  # (K,) readings of the calibrated gyro, deg/s
+    rate: np.ndarray  # (K, 3) healthy-triad rate ω̂_H, deg/s
+    truth: np.ndarray  # (K, 4) true [b deg/s, λ, δ_u rad, δ_v rad]
+    dt: np.ndarray  # (K,) prediction step before each epoch, s
+    onset_s: float | None  # the drawn onset (time of the run), s; None without an onset
+    t0_s: float = 0.0  # time of the run at the first calibrated epoch, s
+
+
+def episode_inputs(
+    cfg: GyrosConfig, unit: GyroUnit, setup: UkfSetup, target: Target, t: np.ndarray, draw: int
+) -> EpisodeInputs:
+    """The episode of the environment whose reset drew ``draw`` (the seed of its
+    simulation): readings, triad rates, truth and steps from ``target.start`` on."""
+    sc = cfg.scenario
+    data = simulate(unit, sc.body_rate, sc.faults, t, draw, [0], sc.onset)
+    s = target.start
+    coeffs = data.trial_coeffs(0)
+    assert coeffs is not None  # a simulation always knows its truth
+    n_steps = t.size - s
+    dt = np.diff(t[max(s - 1, 0) : s + n_steps])
+    if s == 0:
+        dt = np.concatenate([[t[1] - t[0]], dt])
+    return EpisodeInputs(
+        z=data.meas[0, s:, setup.gyro],
+        rate=triad_rate(unit, setup, data.meas[0, s:]),
+        truth=coeffs[s:, setup.gyro],
+        dt=dt,
+        onset_s=None if data.onset_s is None else float(data.onset_s[0]),
+        t0_s=float(t[s]),
+    )
 
 
 def run(cfg: GyrosConfig, data: GyroData | None = None, seed: int | None = None) -> RunResult:

@@ -10,6 +10,13 @@ whatever batch or chunk it is simulated in, and the same for every fault a bench
 
 with the coefficients of gyro i changed by its faults from their time on; a stuck gyro repeats
 its last healthy reading (plus ``size``).
+
+A scenario with an ``onset`` (:class:`~qkf.redundant_gyros.config.OnsetDrift`;
+docs/redundant_gyros.md, "Onset and drift") also draws, per trial, the onset time, a step of
+the onset gyro's coefficients at that time and a random walk of them, from
+``default_rng([s, k, ONSET_STREAM])``: a stream of its own, so the noise of trial ``k`` is the
+same with the option on or off, and a scenario without it is simulated exactly as before. The
+truth then differs between trials: ``GyroData.coeffs`` is (B, E, n, 4) instead of (E, n, 4).
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.core.units import DEG
-from qkf.redundant_gyros.config import BodyRate, Fault
+from qkf.redundant_gyros.config import BodyRate, Fault, OnsetDrift
 from qkf.redundant_gyros.geometry import GyroUnit
 
 
@@ -32,7 +39,15 @@ class GyroData:
     t: np.ndarray  # (E,) s
     meas: np.ndarray  # (B, E, n) deg/s
     rate: np.ndarray | None  # (E, 3) true body rate, deg/s
-    coeffs: np.ndarray | None  # (E, n, 4) true coefficients [b deg/s, λ, δ_u rad, δ_v rad]
+    # (E, n, 4) true coefficients [b deg/s, λ, δ_u rad, δ_v rad]; (B, E, n, 4) with an onset
+    coeffs: np.ndarray | None
+    onset_s: np.ndarray | None = None  # (B,) drawn onset times, s (an onset scenario only)
+
+    def trial_coeffs(self, row: int = 0) -> np.ndarray | None:
+        """The true coefficients (E, n, 4) of trial ``row`` (shared or per trial)."""
+        if self.coeffs is None:
+            return None
+        return self.coeffs if self.coeffs.ndim == 3 else self.coeffs[row]
 
     @property
     def n_epochs(self) -> int:
@@ -98,6 +113,58 @@ def truth(unit: GyroUnit, faults: Sequence[Fault], t: np.ndarray) -> Truth:
     return Truth(coeffs, factor, tuple(stuck))
 
 
+ONSET_STREAM = 0x0115E7
+"""Third word of the seed of a trial's onset draws (its noise has two words)."""
+
+
+def onset_generator(seed: int, trial: int) -> np.random.Generator:
+    """The generator of trial ``trial``'s onset, step and walk: ``default_rng([seed, trial,
+    ONSET_STREAM])``, independent of its noise."""
+    return np.random.default_rng([seed, int(trial), ONSET_STREAM])
+
+
+@dataclass(frozen=True)
+class OnsetDraw:
+    """One trial's draw of an :class:`OnsetDrift` (internal units: b deg/s, λ, δ rad)."""
+
+    onset_s: float  # s; at or after the end of the run: no step
+    step: np.ndarray  # (4,) added to the coefficients from the onset's first epoch on
+    walk: np.ndarray  # (E, 4) random-walk offset per epoch (0 before its start)
+
+
+def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> OnsetDraw:
+    """Draw the onset time ``U(onset_s)``, the step ``N(0, diag(step²))`` and the walk: from its
+    first epoch ``k₀`` (the onset's, or 0 with ``drift_from: start``) on, increments
+    ``N(0, σ² Δt_k)``, so the offset at epoch k has variance ``σ² (t_k − t_{k₀})``. The draws
+    are taken in this fixed order whatever the sds, so a sd of 0 leaves the others unchanged."""
+    lo, hi = spec.onset_s
+    onset = float(rng.uniform(lo, hi))
+    st, dr = spec.step, spec.drift
+    step_sd = np.array([st.bias_deg_s, st.scale, st.delta_u_deg * DEG, st.delta_v_deg * DEG])
+    rate_sd = np.array(
+        [
+            dr.bias_deg_s_per_sqrt_s,
+            dr.scale_per_sqrt_s,
+            dr.delta_u_deg_per_sqrt_s * DEG,
+            dr.delta_v_deg_per_sqrt_s * DEG,
+        ]
+    )
+    step = rng.standard_normal(4) * step_sd
+    eps = rng.standard_normal((t.size, 4))
+    k0 = 0 if spec.drift_from == "start" else first_epoch(t, onset)
+    inc = eps * np.sqrt(np.diff(t, prepend=t[0]))[:, None] * rate_sd
+    inc[: k0 + 1] = 0.0  # the walk is 0 at its first epoch
+    return OnsetDraw(onset, step, np.cumsum(inc, axis=0))
+
+
+def apply_onset(coeffs: np.ndarray, gyro: int, draw: OnsetDraw, t: np.ndarray) -> np.ndarray:
+    """``coeffs`` (E, n, 4) with gyro ``gyro``'s step (from the onset on) and walk added."""
+    out = coeffs.copy()
+    out[first_epoch(t, draw.onset_s) :, gyro] += draw.step
+    out[:, gyro] += draw.walk
+    return out
+
+
 def trial_noise(
     seed: int, trial_ids: Sequence[int] | np.ndarray, n_epochs: int, n: int
 ) -> np.ndarray:
@@ -115,14 +182,23 @@ def simulate(
     t: np.ndarray,
     seed: int,
     trial_ids: Sequence[int] | np.ndarray,
+    onset: OnsetDrift | None = None,
 ) -> GyroData:
-    """Readings of the trials ``trial_ids`` (see the module docstring)."""
+    """Readings of the trials ``trial_ids`` (see the module docstring); ``onset`` draws each
+    trial's onset, step and walk (then ``coeffs`` is per trial, (B, E, n, 4))."""
     rate = body_rate(profile, t)
     tr = truth(unit, faults, t)
-    clean = unit.readings(tr.coeffs, rate)  # (E, n)
+    coeffs = tr.coeffs
+    onset_s = None
+    if onset is not None:
+        gyro = unit.index(onset.gyro)
+        draws = [draw_onset(onset, t, onset_generator(seed, int(k))) for k in trial_ids]
+        coeffs = np.stack([apply_onset(tr.coeffs, gyro, d, t) for d in draws])
+        onset_s = np.array([d.onset_s for d in draws])
+    clean = unit.readings(coeffs, rate)  # (E, n), or (B, E, n)
     sd = unit.noise * tr.noise_factor  # (E, n)
     meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
     for i, k0, offset in tr.stuck:
         held = meas[:, max(k0 - 1, 0), i] + offset
         meas[:, k0:, i] = held[:, None]
-    return GyroData(t=t, meas=meas, rate=rate, coeffs=tr.coeffs)
+    return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
