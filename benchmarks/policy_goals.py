@@ -12,12 +12,18 @@ state group's settled RMS:
 3. on ``steady_random``: upper end ≤ 1.02 × ``kf-tuned``;
 4. no state group (attitude, bias, scale factor, misalignment) more than 5 % worse than
    ``kf-tuned`` on any family (upper end ≤ 1.05);
-5. over training seeds (labels ``NAME#SEED``): rliable's IQM of the per-trial score
+5. with ``--hindsight DIR``, a families study on the same benchmark seed that ran
+   ``hindsight`` (10 s a trial, so the entry's study leaves it out): the share of the
+   ``kf-tuned → hindsight`` gap the policy closes, ``(RMS_kf-tuned − RMS_policy) /
+   (RMS_kf-tuned − RMS_hindsight)`` over the trials both ran (trials are reproducible from
+   ``(seed, trial)``, so they are the same trials: every method both ran must agree on them,
+   which is checked), goal ≥ 0.5 on the families with a change;
+6. over training seeds (labels ``NAME#SEED``): rliable's IQM of the per-trial score
    ``RMS_kf-tuned / RMS_policy`` on ``mixed_random``, its interval above 1 (the study's own
    ``seed_statistics``).
 
     python benchmarks/policy_goals.py --study results/zoo/NAME/families --policy 'NAME#2' \\
-        --out goals.md
+        --hindsight results/families_seed9000 --out goals.md
 """
 
 from __future__ import annotations
@@ -88,10 +94,44 @@ def family_goals(
     return [row], ok
 
 
+def gap_closed(
+    ref: np.ndarray, policy: np.ndarray, yard: np.ndarray, counts: np.ndarray
+) -> tuple[float, float, float]:
+    """The closed share of the ``ref → yard`` gap by ``policy`` (per-trial values on the same
+    trials), and its paired interval over the resamples ``counts``."""
+    r, p, h = (np.sqrt(np.mean(x**2)) for x in (ref, policy, yard))
+    rr, pp, hh = (bootstrap_rms(x**2, counts) for x in (ref, policy, yard))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo, hi = percentile_interval((rr - pp) / (rr - hh), LEVEL)
+    return float((r - p) / (r - h)), float(lo), float(hi)
+
+
+def hindsight_gap(
+    study: Path, hindsight: Path, family: str, new: dict[str, np.ndarray], policy: str
+) -> tuple[int, tuple[float, float, float]] | None:
+    """Goal 5 on one family: (shared trials, closed share); None without hindsight there.
+    ``ValueError`` if the two studies disagree on a method both ran (not the same trials)."""
+    if not (hindsight / family / "trials.csv").is_file():
+        return None
+    old = read_trials_csv(hindsight / family)
+    if "hindsight" not in old:
+        return None
+    j = METRIC_COLUMNS.index(STATE_SETTLED)
+    n = min(new[policy].shape[0], old["hindsight"].shape[0])  # trials 0 … n − 1 of both
+    for m in set(new) & set(old):
+        if not np.allclose(new[m][:n, j], old[m][:n, j], rtol=1e-9, atol=0.0):
+            raise ValueError(f"{family}: {m} differs between {study} and {hindsight}")
+    counts = resample_counts(n, RESAMPLES, 1)
+    return n, gap_closed(
+        new["kf-tuned"][:n, j], new[policy][:n, j], old["hindsight"][:n, j], counts
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", type=Path, required=True, help="a families study folder")
     ap.add_argument("--policy", required=True, help="the policy's method label in the study")
+    ap.add_argument("--hindsight", type=Path, help="a families study that ran hindsight")
     ap.add_argument("--out", type=Path, required=True, help="markdown file to write")
     args = ap.parse_args(argv)
     if args.out.exists():
@@ -104,10 +144,13 @@ def main(argv: list[str] | None = None) -> int:
         "RMS over trials of `state_settled` (group: settled RMS of the group), policy ÷ method, "
         f"paired percentile {100 * LEVEL:g} % interval over {RESAMPLES} resamples of trials.",
         "",
-        "| family | trials | ÷ kf-tuned | ÷ best baseline | ÷ clock | worst group ÷ kf-tuned |",
-        "|---|---|---|---|---|---|",
+        "| family | trials | ÷ kf-tuned | ÷ best baseline | ÷ clock | worst group ÷ kf-tuned "
+        "| kf-tuned → hindsight gap closed (trials) |",
+        "|---|---|---|---|---|---|---|",
     ]
-    verdict: dict[str, list[str]] = {k: [] for k in ("beats_best", "clock_099", "groups_105")}
+    verdict: dict[str, list[str]] = {
+        k: [] for k in ("beats_best", "clock_099", "groups_105", "half_gap")
+    }
     steady_ok = None
     iqm_line = ""
     for family in families:
@@ -115,7 +158,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.policy not in values:
             continue
         rows, ok = family_goals(family, values, args.policy)
-        lines += rows
+        gap = (
+            hindsight_gap(args.study, args.hindsight, family, values, args.policy)
+            if args.hindsight is not None
+            else None
+        )
+        lines += [rows[0] + (f" {_cell(gap[1])} ({gap[0]}) |" if gap else " – |")]
+        if gap is not None and family != STEADY and gap[1][0] >= 0.5:
+            verdict["half_gap"].append(family)
         if family == STEADY:
             steady_ok = ok["steady_102"]
         else:
@@ -143,6 +193,9 @@ def main(argv: list[str] | None = None) -> int:
         f"- steady_random ÷ kf-tuned upper end ≤ 1.02: {steady_ok}",
         f"- no group > 5 % worse than kf-tuned on {len(verdict['groups_105'])} of "
         f"{len(families)} families",
+        f"- half of the kf-tuned → hindsight gap closed on {len(verdict['half_gap'])} of "
+        f"{len(changed)} families with a change: {', '.join(verdict['half_gap']) or 'none'}"
+        + ("" if args.hindsight else " (no --hindsight study)"),
         f"- {iqm_line}" if iqm_line else "- no seed statistics (one training seed?)",
     ]
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -238,3 +238,32 @@ def test_frame_stack_and_memory_settings_are_checked() -> None:
         load_train_config(TRAINING / "train_rppo_mixed_v3.yaml", ["frame_stack=2"])
     with pytest.raises(ConfigError, match="frame_stack: the tabular agent"):
         load_train_config(TRAINING / "train_tabular.yaml", ["frame_stack=2"])
+
+
+def test_policy_goals_gap_share_by_hand() -> None:
+    """benchmarks/policy_goals.py: the closed share of the kf-tuned → hindsight gap, against
+    a hand computation (RMS 2 → 1.5 → 1: half), and its interval contains the point."""
+    import importlib.util
+
+    from qkf.core.stats import resample_counts
+    from tests.conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location(
+        "policy_goals", ROOT / "benchmarks" / "policy_goals.py"
+    )
+    assert spec is not None and spec.loader is not None
+    goals = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(goals)
+    rng = np.random.default_rng(SEED)
+    shape = rng.uniform(0.5, 1.5, size=40)
+    unit = shape / np.sqrt(np.mean(shape**2))  # RMS exactly 1
+    point, lo, hi = goals.gap_closed(
+        2.0 * unit, 1.5 * unit, 1.0 * unit, resample_counts(40, 500, 0)
+    )
+    assert point == pytest.approx(0.5, abs=1e-12)
+    # every resample scales the three alike, so the share is 1/2 in each
+    assert lo == pytest.approx(0.5, abs=1e-9) and hi == pytest.approx(0.5, abs=1e-9)
+    point, lo, hi = goals.gap_closed(
+        2.0 * unit, 2.5 * shape, 1.0 * unit, resample_counts(40, 500, 0)
+    )
+    assert point < 0 and lo <= point <= hi

@@ -132,6 +132,22 @@ def _num(text: str, digits: int = 3) -> str:
     return f"{value:.{digits}f}" if np.isfinite(value) else "–"
 
 
+def _ratio_cell(r: dict[str, str]) -> str:
+    """``value [lo, hi] verdict``, with more digits where three would print a decided bound
+    as 1.000 (an interval that excludes 1 by less than 5e-4)."""
+    digits = 3
+    while (
+        digits < 6
+        and r["verdict"] in ("better", "worse")
+        and "1." + "0" * digits in (_num(r["lo"], digits), _num(r["hi"], digits))
+    ):
+        digits += 1
+    return (
+        f"{_num(r['value'], digits)} [{_num(r['lo'], digits)}, {_num(r['hi'], digits)}] "
+        f"{r['verdict']}"
+    )
+
+
 def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     """The families section of the card, from ``evaluation/zoo_families.csv``
     (:func:`agents.zoo.summary.families_summary`): per family the IQM line and a table of the
@@ -180,9 +196,7 @@ def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
         for b in dict.fromkeys([*p_improve, *ratio]):
             p = p_improve.get(b)
             r = ratio.get(b)
-            cell = (
-                f"{_num(r['value'])} [{_num(r['lo'])}, {_num(r['hi'])}] {r['verdict']}" if r else ""
-            )
+            cell = _ratio_cell(r) if r else ""
             lines.append(f"| {b} | {_num(p['value'], 2) if p else '–'} | {cell} |")
         lines.append("")
     return lines
