@@ -84,7 +84,8 @@ class BatchedEpisodes:
         self.n_epochs = n_epochs(cfg.scenario)
         self.episode_steps = math.ceil(self.n_epochs / self.period)
         self.bound = crlb(cfg).bound
-        self.weights = state_weights(cfg)  # of state_settled, for the state_gain reward
+        # the state_settled weights (a CRLB run), for the *_gain rewards' reference only
+        self.weights = state_weights(cfg) if self.reward.needs_reference else None
         ne = self.n_epochs
         self.gyro = np.zeros((n, ne, 3))
         self.ads_q = np.zeros((n, ne, 4))
@@ -135,7 +136,7 @@ class BatchedEpisodes:
     def _run_reference(self, rows: np.ndarray) -> None:
         """The nominal-κ filter over the whole episode of ``rows``: its errors (SI) and its
         settled mean square of ``state_settled`` (weights :attr:`weights`)."""
-        if self.reference_errors is None:
+        if self.reference_errors is None or self.weights is None:
             return
         ref = TransferAlignmentKF(self.params, rows.size)
         ref.initialize(self.ads_q[rows, 0])

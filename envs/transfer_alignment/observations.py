@@ -126,19 +126,17 @@ def masked_mean(x: np.ndarray, valid: np.ndarray, empty: float = 0.0) -> np.ndar
     return np.where(n > 0, np.where(ok, x, 0.0).sum(axis=1) / np.maximum(n, 1), empty)
 
 
-def sigma_ratios(view: PeriodView) -> np.ndarray:
-    """Mean ``log10(σ/σ₀)`` of the attitude, bias and calibration blocks at the period's last
-    valid epoch (N, 3)."""
+THREE_BLOCKS = (slice(0, 3), slice(3, 6), slice(6, 15))
+"""v0–v2: the attitude, bias and calibration blocks of the state."""
+
+
+def sigma_ratios(view: PeriodView, blocks: tuple[slice, ...] = THREE_BLOCKS) -> np.ndarray:
+    """Mean ``log10(σ/σ₀)`` of each block of states at the period's last valid epoch
+    (N, len(blocks)); v3 asks for the four groups (attitude, bias, scale factor,
+    misalignment)."""
     rows = np.arange(view.last.size)
     log_ratio = 0.5 * np.log10(view.record.var[rows, view.last] / view.p0_sigma**2)
-    return np.stack(
-        [
-            log_ratio[:, 0:3].mean(axis=1),
-            log_ratio[:, 3:6].mean(axis=1),
-            log_ratio[:, 6:15].mean(axis=1),
-        ],
-        axis=1,
-    )
+    return np.stack([log_ratio[:, sl].mean(axis=1) for sl in blocks], axis=1)
 
 
 def rate_deg_s(view: PeriodView) -> np.ndarray:
@@ -339,7 +337,8 @@ class ObservationV3(ObservationV2):
                 LOG_FLOOR,
             )
         )
-        return finite_clipped(self._assemble(block_sigma_ratios(view), v2, windows))
+        levels = sigma_ratios(view, tuple(GROUPS.values()))
+        return finite_clipped(self._assemble(levels, v2, windows))
 
 
 class ObservationV3Timed(ObservationV3):
@@ -354,14 +353,6 @@ class ObservationV3Timed(ObservationV3):
 
     def __call__(self, view: PeriodView) -> np.ndarray:
         return finite_clipped(np.column_stack([super().__call__(view), view.elapsed]))
-
-
-def block_sigma_ratios(view: PeriodView) -> np.ndarray:
-    """Mean ``log10(σ/σ₀)`` of the attitude, bias, scale-factor and misalignment blocks at the
-    period's last valid epoch (N, 4)."""
-    rows = np.arange(view.last.size)
-    log_ratio = 0.5 * np.log10(view.record.var[rows, view.last] / view.p0_sigma**2)
-    return np.stack([log_ratio[:, sl].mean(axis=1) for sl in GROUPS.values()], axis=1)
 
 
 OBSERVATIONS.register(
