@@ -130,6 +130,9 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
         kappa=kappa,
         notes={"policy": f"{policy.cfg.agent} policy from {path}"},
         cov=replay.cov,
+        var=replay.var,
+        innov=replay.innov,
+        nis=replay.nis,
     )
 
 

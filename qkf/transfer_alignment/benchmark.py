@@ -33,6 +33,7 @@ from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     BUILTIN_METHODS,
+    MethodOutput,
     MethodSpecError,
     NamedMethod,
     prepare,
@@ -49,7 +50,7 @@ from qkf.transfer_alignment.metrics import (
     window_masks,
 )
 from qkf.transfer_alignment.params import n_epochs
-from qkf.transfer_alignment.scenario import simulate
+from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUPS
 
 BAND_POINTS = 300
@@ -157,6 +158,14 @@ def band_epochs(n: int) -> np.ndarray:
     return np.unique(np.append(np.arange(0, n, step), n - 1))
 
 
+DataSource = Callable[[Config, int, np.ndarray], ScenarioData]
+"""``source(cfg, seed, trial ids) -> ScenarioData``: where a benchmark's trials come from
+(:func:`~qkf.transfer_alignment.scenario.simulate` unless recorded data are given)."""
+
+KeepOutput = Callable[[str, np.ndarray, MethodOutput], None]
+"""``keep(method, trial ids, output)``: called by :func:`run_chunk` with every method's output
+on a chunk (in-process runs only): recorded runs write the estimates from it."""
+
 MethodReport = Callable[[str, np.ndarray, bool], None]
 """``report(method, trial ids, finished)``: called by :func:`run_chunk` as each method starts
 and finishes on a chunk (progress; in-process runs only, it does not travel to workers)."""
@@ -169,16 +178,20 @@ def run_chunk(
     ids: np.ndarray,
     *,
     report: MethodReport | None = None,
+    source: DataSource = simulate,
+    keep: KeepOutput | None = None,
 ) -> ChunkResult:
-    """Simulate trials ``ids`` and run every method on them (the unit of work of a backend).
+    """Simulate trials ``ids`` (or take them from ``source``) and run every method on them (the
+    unit of work of a backend).
 
-    ``report``: see :data:`MethodReport` (progress only; the results do not depend on it).
+    ``report``: see :data:`MethodReport` (progress only; the results do not depend on it);
+    ``keep``: see :data:`KeepOutput`.
     """
     n = n_epochs(cfg.scenario)
     sample = np.arange(0, n, kappa_sampling(cfg))
     banded = band_epochs(n)
     cov_epochs = covariance_epochs(cfg)
-    data = simulate(cfg, seed, ids)
+    data = source(cfg, seed, ids)
     weights = state_weights(cfg) / DISPLAY_UNIT  # state_settled's, in display units
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
@@ -187,6 +200,8 @@ def run_chunk(
         t0 = time.perf_counter()
         out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
         res.runtime_s[m.name] = time.perf_counter() - t0
+        if keep is not None:
+            keep(m.name, ids, out)
         err = state_errors(out.est, data.q_true, data.bias, data.calib)
         res.sum_sq[m.name] = np.sum(err * err, axis=0)
         res.trial_ms[m.name] = trial_mean_squares(
@@ -244,6 +259,8 @@ def run_benchmark(
     progress: bool = True,
     backend: str = "local",
     workers: int | None = None,
+    source: DataSource = simulate,
+    keep: KeepOutput | None = None,
 ) -> BenchResult:
     """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario.
 
@@ -253,6 +270,8 @@ def run_benchmark(
     ``ray``; chunks are combined in chunk order, so every backend gives the same numbers.
     The methods' settings sections are checked first (:func:`resolve_method_settings`:
     ``ConfigError`` before any work), and the result's ``config`` is the resolved one.
+    ``source`` / ``keep``: recorded data instead of simulated trials, and a hook that sees
+    every method's output (:data:`DataSource`, :data:`KeepOutput`; in this process only).
     """
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
@@ -283,6 +302,8 @@ def run_benchmark(
     # in this process the bar moves per method and chunk (a run of <= 64 trials is one chunk);
     # trials that run in other processes report back per chunk only
     in_process = backend == "local" and workers <= 1
+    if keep is not None and not in_process:
+        raise ValueError("keep= needs the trials run in this process (local, one worker)")
     label = _bar_label(labels, backend, workers)
     with progress_bar(trials * len(labels), label, progress, "method-trials") as bar:
         bar.note("preparing methods")
@@ -290,9 +311,17 @@ def run_benchmark(
         prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
         bar.note(None if in_process else f"0/{trials} trials")
         task = (
-            partial(run_chunk, cfg, prepared, seed, report=_method_progress(bar))
+            partial(
+                run_chunk,
+                cfg,
+                prepared,
+                seed,
+                report=_method_progress(bar),
+                source=source,
+                keep=keep,
+            )
             if in_process
-            else partial(run_chunk, cfg, prepared, seed)
+            else partial(run_chunk, cfg, prepared, seed, source=source)
         )
         done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):

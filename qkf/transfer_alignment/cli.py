@@ -121,6 +121,15 @@ def bench_cmd(
         bool, typer.Option(help="Sweeps: finish an interrupted sweep in --out.")
     ] = False,
     overwrite: OverwriteOption = False,
+    data: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--data",
+            help="Recorded runs (CSV or Parquet, or a folder of them; repeat for several) "
+            "instead of simulated trials: each file is a trial. CONFIG gives the noise, prior "
+            "and filter settings. See docs/recorded_data.md.",
+        ),
+    ] = None,
 ) -> None:
     """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots,
     run.json. --out must be new, empty or (with --overwrite) an earlier bench run, which is
@@ -128,7 +137,21 @@ def bench_cmd(
 
     A config with a ``sweep`` runs once per value into OUT/<key>=<value>/ and writes
     OUT/sweep_summary.csv.
+
+    With --data the trials are recorded runs: estimates.csv (every method's estimates and σ per
+    row), quality.csv and summary.md (NIS bands and whiteness, no truth needed), final.csv,
+    estimates.png, nis.png; with truth columns in the files, everything above as well.
     """
+    if data:
+        if config is None or from_manifest is not None:
+            raise fail("--data needs a CONFIG (noise, prior, filter settings), not --from-manifest")
+        if trials is not None or resume or backend != "local" or (workers or 1) > 1:
+            raise fail(
+                "--data: the files are the trials (no --trials), run in this process "
+                "(no --backend, --workers or --resume)"
+            )
+        _bench_recorded(config, set_, methods, seed, data, out_path, quiet, overwrite)
+        return
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed, run_benchmark
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
@@ -203,6 +226,84 @@ def bench_cmd(
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None
     out.print(f"wrote {summary}")
+
+
+def _bench_recorded(
+    config: str,
+    sets: list[str] | None,
+    methods: str | None,
+    seed: int | None,
+    data: list[Path],
+    out_path: str,
+    quiet: bool,
+    overwrite: bool,
+) -> None:
+    """``qkf bench CONFIG --data FILE …``: every check (config, methods, data, output folder)
+    before any method runs; nothing is written on bad input."""
+    from qkf.core.io import OutputError
+    from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed
+    from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
+    from qkf.transfer_alignment.recorded.grid import load_recorded
+    from qkf.transfer_alignment.recorded.outputs import RECORDED_KIND, write_recorded_run
+    from qkf.transfer_alignment.recorded.run import run_recorded
+
+    cfg = _load(config, sets)
+    if cfg.sweep is not None:
+        raise fail(f"{config}: sweep: a sweep runs simulated trials; drop it to use --data")
+    seed_option(seed)
+    if seed is not None:
+        cfg = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": seed})})
+    try:
+        named = parse_methods("all" if methods is None else methods)
+    except ValueError as exc:
+        raise fail(f"--methods: {exc}") from None
+    try:
+        cfg = resolve_method_settings(cfg, named, config)
+        refuse_tuning_seed(named, cfg.run.seed)
+        rec = load_recorded(cfg, data)
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    except ValueError as exc:
+        raise fail(f"--methods: {exc}") from None
+    folder = out_dir(out_path, "bench" if rec.has_truth else RECORDED_KIND, overwrite)
+    try:
+        res = run_recorded(rec, named, progress=not quiet)
+        write_recorded_run(res, folder)
+    except (ConfigError, MethodOutputError, OutputError) as exc:
+        raise fail(str(exc)) from None
+    text = (folder / "summary.md").read_text()
+    out.print(text, soft_wrap=True, markup=False, highlight=False)
+    out.print(f"wrote {folder}/")
+
+
+@app.command("record")
+def record_cmd(
+    config: ConfigArgument,
+    out_path: Annotated[Path, typer.Option("--out", help="The file to write (.csv or .parquet).")],
+    trial: Annotated[int, typer.Option(help="Which trial of the run (0-based).")] = 0,
+    seed: Annotated[int | None, typer.Option(help="Seed (config: run.seed).")] = None,
+    truth: Annotated[
+        bool, typer.Option(help="Write the truth columns too (true_q*, true_bias_*, true_p_*).")
+    ] = True,
+    set_: SetOption = None,
+) -> None:
+    """Write one simulated trial as a recorded run (the --data format of qkf bench): the ADS
+    attitude and rate, the gyro output and (--truth) the truth, one row per epoch."""
+    from qkf.transfer_alignment.recorded.writer import simulate_to_file
+
+    cfg = _load(config, set_)
+    seed_option(seed)
+    if not 0 <= trial < MAX_TRIALS:
+        raise fail(f"--trial must be between 0 and {MAX_TRIALS - 1:,}")
+    if out_path.exists():
+        raise fail(f"--out: {out_path} exists; qkf record never overwrites a file")
+    if out_path.suffix.lower() not in (".csv", ".parquet", ".pq"):
+        raise fail(f"--out: {out_path}: give a .csv or .parquet file")
+    try:
+        simulate_to_file(cfg, cfg.run.seed if seed is None else seed, trial, out_path, truth=truth)
+    except (ConfigError, OSError) as exc:
+        raise fail(str(exc)) from None
+    out.print(f"wrote {out_path}")
 
 
 def _from_manifest(path: Path) -> tuple[Config, str, int, int]:

@@ -343,6 +343,22 @@ class RunConfig(StrictModel):
     bootstrap: Bootstrap = Bootstrap()
 
 
+class RecordedConfig(StrictModel):
+    """Reading recorded runs (``qkf bench CONFIG --data FILE``; docs/recorded_data.md).
+
+    The data set the time grid: its step is the median row step, and every row step must be a
+    whole number of it (within ``step_tolerance``); the filter propagates through the missing
+    epochs of a longer step with the gyro reading held, without updates.
+    """
+
+    max_epochs: Annotated[int, Field(ge=2, le=MAX_EPOCHS)] = 5_000_000  # per file, grid epochs
+    max_gap_s: PositiveFloat = 60.0  # longest time without an ADS measurement (attitude or rate)
+    step_tolerance: Annotated[float, Field(gt=0.0, lt=0.5)] = 0.01  # of the step
+    quaternion_tolerance: Annotated[float, Field(gt=0.0, lt=0.1)] = 1e-6  # |‖q‖ − 1|
+    max_rate_rad_s: PositiveFloat = 10.0  # a larger |ω| is refused ("deg/s given?")
+    chunk_rows: Annotated[int, Field(ge=1024, le=10_000_000)] = 262_144  # rows read at a time
+
+
 class SageHusaConfig(StrictModel):
     forgetting: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.97
     adapt_r: bool = False  # also estimate the attitude measurement noise
@@ -582,6 +598,7 @@ class Config(StrictModel):
     filter: FilterConfig = FilterConfig()
     run: RunConfig = RunConfig()
     adaptive: AdaptiveConfig = AdaptiveConfig()
+    recorded: RecordedConfig = RecordedConfig()
     sweep: Sweep | None = None
 
     @model_validator(mode="after")

@@ -241,7 +241,7 @@ class TransferAlignmentKF:
             data.gyro[:, sl],
             data.ads_q[:, sl],
             data.ads_rate[:, sl],
-            data.has_meas[sl],
+            data.has_meas[..., sl],
             kappa,
             record_cov,
         )

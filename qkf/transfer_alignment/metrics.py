@@ -25,7 +25,8 @@ def state_errors(
     q_hat = est[..., 0:4].reshape(-1, 4)
     q_t = np.broadcast_to(q_true, (b, n, 4)).reshape(-1, 4)
     err = np.empty((b, n, N_STATES))
-    finite = np.all(np.isfinite(q_hat), axis=1)
+    # NaN where either side is not finite: a diverged estimate, or no truth (recorded data)
+    finite = np.all(np.isfinite(q_hat), axis=1) & np.all(np.isfinite(q_t), axis=1)
     att = np.full((b * n, 3), np.nan)
     if finite.any():
         att[finite] = (

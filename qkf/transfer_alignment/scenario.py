@@ -65,7 +65,7 @@ class ScenarioData:
     gyro: np.ndarray  # (B, N, 3) rad/s
     ads_q: np.ndarray  # (B, N, 4)
     ads_rate: np.ndarray  # (B, N, 3) rad/s
-    has_meas: np.ndarray  # (N,) bool
+    has_meas: np.ndarray  # (N,) bool, or (B, N) when trials differ (recorded runs)
     trial_ids: np.ndarray  # (B,) the trial index each row was drawn for
     seed: int = 0  # the run's seed: with trial_ids, what methods seed their own draws from
     jump_t: np.ndarray | None = None  # (B,) s, each trial's first calibration jump (NaN: none)

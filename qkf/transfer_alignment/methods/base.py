@@ -24,7 +24,7 @@ import numpy as np
 
 from qkf.core.config import StrictModel
 from qkf.transfer_alignment.config import Config, SettingsT, read_section
-from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -45,6 +45,12 @@ class MethodOutput:
     none); the benchmark judges it by NEES. ``None``: the method reports no covariance.
     ``logs`` holds method-specific arrays for whoever calls the method directly; the benchmark
     does not read them.
+
+    ``var``, ``innov`` and ``nis``: what a method that runs one filter saw at every epoch —
+    the diagonal of its a-posteriori covariance, its innovations and their normalised squares.
+    Recorded runs without truth are judged by them (docs/recorded_data.md): the ±σ columns of
+    ``estimates.csv``, NIS against its χ² band and the innovations' whiteness. ``None``: the
+    method does not report them (a bank, a batch solution), and those columns are empty.
     """
 
     est: np.ndarray  # (B, N, 16): q̂ (scalar-last), b̂ (rad/s), p̂ after each epoch's update
@@ -53,6 +59,17 @@ class MethodOutput:
     logs: dict[str, np.ndarray] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)  # one-line facts for the summary
     cov: np.ndarray | None = None  # (B, M, 15, 15) at the sampled epochs, SI
+    var: np.ndarray | None = None  # (B, N, 15) diagonal of P after each epoch's update, SI
+    innov: np.ndarray | None = None  # (B, N, 6) attitude, rate innovations, SI; NaN: none
+    nis: np.ndarray | None = None  # (B, N, 2) attitude, rate NIS; NaN without that update
+
+
+def with_epoch_records(out: MethodOutput, rec: FilterRecord) -> MethodOutput:
+    """``out`` with the per-epoch fields (``var``, ``innov``, ``nis``) of one filter's record."""
+    out.var = rec.var
+    out.innov = rec.innov
+    out.nis = np.stack([rec.nis_att, rec.nis_rate], axis=-1)
+    return out
 
 
 def validate_output(
@@ -95,6 +112,13 @@ def validate_output(
             raise MethodOutputError(
                 f"{where}: cov has shape {cov.shape}, expected ({n_trials}, {n_cov}, 15, 15): "
                 "the covariance at the sampled epochs (methods.covariance.covariance_epochs)"
+            )
+    for name, width in (("var", 15), ("innov", 6), ("nis", 2)):
+        arr = getattr(out, name)
+        if arr is not None and np.shape(arr) != (n_trials, n_epochs, width):
+            raise MethodOutputError(
+                f"{where}: {name} has shape {np.shape(arr)}, expected "
+                f"({n_trials}, {n_epochs}, {width})"
             )
     bad_notes = [k for k, v in out.notes.items() if not isinstance(v, str)]
     if bad_notes:

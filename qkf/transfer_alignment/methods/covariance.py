@@ -74,7 +74,7 @@ def step_recording(
     """
     sl = slice(k0, k1)
     return step_arrays(
-        kf, data.gyro[:, sl], data.ads_q[:, sl], data.ads_rate[:, sl], data.has_meas[sl],
+        kf, data.gyro[:, sl], data.ads_q[:, sl], data.ads_rate[:, sl], data.has_meas[..., sl],
         kappa, k0, recorder,
     )  # fmt: skip
 

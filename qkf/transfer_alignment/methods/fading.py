@@ -176,7 +176,9 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingConfig) -> MethodO
     php: np.ndarray | None = None  # Φ_{k−1} P⁺_{k−1} Φ_{k−1}ᵀ (B, 15, 15)
     var_post: np.ndarray | None = None  # diag P⁺_{k−1} of the calibration block (B, 9)
     for k in range(n):
-        if php is not None and var_post is not None and data.has_meas[k]:
+        # per-trial mask: recorded runs may update on different epochs in each trial
+        meas_k = np.broadcast_to(data.has_meas[..., k], (b,))
+        if php is not None and var_post is not None and meas_k.any():
             nu = attitude_innovation(kf.q_hat, data.ads_q[:, k])  # ν_k from Ĉ⁻_k
             v = forget_innovation_covariance(v, nu, prm.forgetting)
             p_pred = kf.P
@@ -185,7 +187,7 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingConfig) -> MethodO
             lam = fading_factor(v, r_a, other, php[:, THETA, THETA], prm.softening)
             lam = np.minimum(lam, prm.lambda_max)
             lam = np.minimum(lam, prior_cap(p_pred, php, p0_var))
-            ok = np.isfinite(lam) & ~kf.diverged
+            ok = np.isfinite(lam) & ~kf.diverged & meas_k
             lam = np.where(ok, lam, 1.0)
             # P⁻ ← P⁻ + (λ − 1) Φ P⁺ Φᵀ  (= λ Φ P⁺ Φᵀ + Q); rows with λ = 1 unchanged
             faded = np.where(ok[:, None, None], p_pred + (lam - 1.0)[:, None, None] * php, p_pred)

@@ -9,7 +9,12 @@ import numpy as np
 from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config, TunedConfig
 from qkf.transfer_alignment.judging import estimate_scores, pooled
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    with_epoch_records,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
@@ -19,7 +24,8 @@ def run_fixed(cfg: Config, data: ScenarioData, kappa: float) -> MethodOutput:
     kf = new_filter(cfg, data)
     cov = CovarianceRecorder(cfg, data.n_trials)
     rec = step_recording(kf, data, 0, data.n_epochs, kappa, cov)
-    return MethodOutput(est=rec.est, diverged=kf.diverged.copy(), cov=cov.cov)
+    out = MethodOutput(est=rec.est, diverged=kf.diverged.copy(), cov=cov.cov)
+    return with_epoch_records(out, rec)
 
 
 def run_kf(cfg: Config, data: ScenarioData) -> MethodOutput:

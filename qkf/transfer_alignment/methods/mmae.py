@@ -85,7 +85,7 @@ def step_bank(
         np.repeat(data.gyro[:, sl], n_act, axis=0),
         np.repeat(data.ads_q[:, sl], n_act, axis=0),
         np.repeat(data.ads_rate[:, sl], n_act, axis=0),
-        data.has_meas[sl],
+        data.has_meas[..., sl],
         kappa_rows,
         k0,
         recorder,

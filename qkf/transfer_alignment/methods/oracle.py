@@ -25,7 +25,12 @@ import numpy as np
 from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config, OracleConfig
 from qkf.transfer_alignment.judging import estimate_scores, pooled
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    new_filter,
+    with_epoch_records,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 
@@ -50,7 +55,8 @@ def run_schedule(cfg: Config, data: ScenarioData, kappa: np.ndarray) -> MethodOu
     kf = new_filter(cfg, data)
     cov = CovarianceRecorder(cfg, data.n_trials)
     rec = step_recording(kf, data, 0, data.n_epochs, kappa, cov)
-    return MethodOutput(est=rec.est, diverged=kf.diverged.copy(), kappa=kappa, cov=cov.cov)
+    out = MethodOutput(est=rec.est, diverged=kf.diverged.copy(), kappa=kappa, cov=cov.cov)
+    return with_epoch_records(out, rec)
 
 
 def settled_score(cfg: Config, data: ScenarioData, out: MethodOutput) -> float:

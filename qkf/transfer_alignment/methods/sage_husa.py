@@ -93,7 +93,7 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
     sh = cfg.adaptive.sage_husa
     r_hat = kf.sigma_a**2
     r_min = (sh.r_floor * kf.params.sigma_a) ** 2
-    d_r = forgetting_weights(sh.forgetting, int(np.count_nonzero(data.has_meas)) + 1)
+    d_r = forgetting_weights(sh.forgetting, int(np.count_nonzero(data.has_meas, axis=-1).max()) + 1)
     n_upd = 0
     sigma_log = np.empty((b, n))
     for k in range(n):
@@ -107,10 +107,14 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
         # a diverged trial's NaNs stay in its own rows; keep the clip range for the others
         q_hat = np.where(np.isfinite(q_hat), q_hat, qp0 * dt)
         var_prev = var_post
-        if sh.adapt_r and data.has_meas[k] and data.t[k] >= sh.r_warmup_s:
-            r_hat = adapt_attitude_noise(
+        # per-trial mask: recorded runs may update on different epochs in each trial (the
+        # forgetting weight then counts the epochs where any trial updated)
+        meas_k = np.broadcast_to(data.has_meas[..., k], (b,))
+        if sh.adapt_r and meas_k.any() and data.t[k] >= sh.r_warmup_s:
+            r_new = adapt_attitude_noise(
                 r_hat, d_r[n_upd], rec.innov[:, 0, 0:3], rec.trace_s_att[:, 0], r_min
             )
+            r_hat = np.where(meas_k, r_new, r_hat)
             n_upd += 1
             kf.sigma_a[:] = np.sqrt(r_hat)
     logs: dict[str, np.ndarray] = {"kappa_terms": kappa_log}

@@ -201,7 +201,8 @@ class _Search:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         d = self.data
         sl = slice(k0, k1)
-        return d.gyro[trials, sl], d.ads_q[trials, sl], d.ads_rate[trials, sl], d.has_meas[sl]
+        meas = d.has_meas[sl] if d.has_meas.ndim == 1 else d.has_meas[trials, sl]
+        return d.gyro[trials, sl], d.ads_q[trials, sl], d.ads_rate[trials, sl], meas
 
     def rollout(
         self, carry: TransferAlignmentKF, trials: np.ndarray, sched: np.ndarray, start: int
