@@ -134,9 +134,10 @@ def place_rows(run: RecordedRun, cfg: Config) -> _Placed:
     bad = np.flatnonzero((off > rc.step_tolerance) | (np.diff(k, prepend=-1) < 1))
     if bad.size:
         i = int(bad[0])
+        ti, t0 = float(t[i]), float(t[0])
         raise RecordedDataError(
-            f"{_where(run.path, first + i)}, column t_s: t = {t[i]!r} s is {off[i]:.3g} steps off "
-            f"the grid of step {dt:.6g} s (the median row step) started at t = {t[0]!r} s; rows "
+            f"{_where(run.path, first + i)}, column t_s: t = {ti!r} s is {off[i]:.3g} steps off "
+            f"the grid of step {dt:.6g} s (the median row step) started at t = {t0!r} s; rows "
             f"must lie within recorded.step_tolerance = {rc.step_tolerance:g} step of it "
             "(the step may vary only by whole steps: dropped samples)"
         )
@@ -182,7 +183,7 @@ def _check_gaps(path: Path, first: int, t: np.ndarray, used: np.ndarray, limit: 
         end = idx[j] if j < idx.size else t.size - 1
         raise RecordedDataError(
             f"{_where(path, first + int(end))}: {gaps[j]:.6g} s without an ADS measurement the "
-            f"filter uses (t = {times[j]!r} … {times[j + 1]!r} s); longer than "
+            f"filter uses (t = {float(times[j])!r} … {float(times[j + 1])!r} s); longer than "
             f"recorded.max_gap_s = {limit:g} s"
         )
 

@@ -196,8 +196,8 @@ def _to_float(path: Path, name: str, col: pa.Array, row0: int) -> tuple[np.ndarr
     if bad.size:
         i = int(bad[0])
         raise RecordedDataError(
-            f"{where(path, row0 + i + 1)}, column {name}: {values[i]!r} (NaN and inf are not "
-            "data; leave an ADS cell empty where there is no measurement)"
+            f"{where(path, row0 + i + 1)}, column {name}: {float(values[i])!r} (NaN and inf are "
+            "not data; leave an ADS cell empty where there is no measurement)"
         )
     return values, mask
 
@@ -287,8 +287,8 @@ class _Collector:
         if bad.size:
             i = int(bad[0])
             raise RecordedDataError(
-                f"{where(self.path, row0 + i + 1)}, column {TIME}: t = {t[i]!r} s after "
-                f"t = {prev[i]!r} s; time must be strictly increasing"
+                f"{where(self.path, row0 + i + 1)}, column {TIME}: t = {float(t[i])!r} s after "
+                f"t = {float(prev[i])!r} s; time must be strictly increasing"
             )
         self.last_t = float(t[-1])
 
