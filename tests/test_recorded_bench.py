@@ -317,3 +317,20 @@ def test_record_command_never_overwrites(tmp_path: Path) -> None:
         app, ["record", "paper", "--set", "scenario.duration_s=60", "--out", str(path)]
     )
     assert r.exit_code == 2 and path.read_bytes() == before
+
+
+@pytest.mark.parametrize("spec", ["alarm-burst", "qkf"])
+def test_per_epoch_records_equal_the_filter_replayed_with_the_kappa_trace(spec: str) -> None:
+    """σ and NIS a κ-schedule method reports are those of the plain filter run with the κ it
+    chose (its blocks' records put together in the right epochs)."""
+    from qkf.transfer_alignment.methods.oracle import run_schedule
+
+    cfg = short(300.0)
+    data = simulate(cfg, 4, [0, 1])
+    out = resolve_method(spec).method(cfg, data)
+    assert out.kappa is not None and out.var is not None and out.nis is not None
+    replay = run_schedule(cfg, data, out.kappa)
+    assert replay.var is not None and replay.nis is not None and replay.innov is not None
+    np.testing.assert_allclose(out.var, replay.var, rtol=1e-12)
+    np.testing.assert_allclose(out.nis, replay.nis, rtol=1e-9)
+    np.testing.assert_allclose(out.innov, replay.innov, rtol=1e-9, atol=1e-20)

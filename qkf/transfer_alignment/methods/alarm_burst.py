@@ -23,7 +23,7 @@ import numpy as np
 
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import AlarmBurstConfig, Config
-from qkf.transfer_alignment.methods.base import MethodOutput, new_filter, per_epoch
+from qkf.transfer_alignment.methods.base import EpochRecords, MethodOutput, new_filter, per_epoch
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, tune_oracle
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -52,10 +52,12 @@ class AlarmBurstSchedule:
         clock = change_clock(cfg, data.n_trials)  # the alarm settings observation v2 sees too
         kappa = np.full(data.n_trials, orc.base)
         est, held = [], []
+        epochs = EpochRecords(data.n_trials, data.n_epochs)
         for k0 in range(0, data.n_epochs, period):
             k1 = min(data.n_epochs, k0 + period)
             rec = step_recording(kf, data, k0, k1, kappa, cov)
             est.append(rec.est)
+            epochs.put(k0, rec)
             held.append(kappa)
             alarm = clock.alarms(nis_per_row(rec.nis, kf.params.n_meas))
             age = clock.update(alarm, (k1 - k0) * cfg.scenario.dt_s)
@@ -66,6 +68,7 @@ class AlarmBurstSchedule:
             kappa=per_epoch(np.stack(held, axis=1), period, data.n_epochs),
             cov=cov.cov,
         )
+        epochs.attach(out)
         out.notes["alarm-burst"] = (
             f"κ = {orc.after:.3g} for {orc.window_s:g} s from the first NIS alarm of a change, "
             f"else {orc.base:.3g} (the oracle's values, tuned with the truth on tuning seeds)"

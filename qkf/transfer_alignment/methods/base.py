@@ -64,6 +64,28 @@ class MethodOutput:
     nis: np.ndarray | None = None  # (B, N, 2) attitude, rate NIS; NaN without that update
 
 
+class EpochRecords:
+    """The per-epoch fields of :class:`MethodOutput` (``var``, ``innov``, ``nis``) of one filter
+    run in blocks: :meth:`put` each block's record, :meth:`attach` them to the output."""
+
+    def __init__(self, n_trials: int, n_epochs: int) -> None:
+        self.var = np.full((n_trials, n_epochs, 15), np.nan)
+        self.innov = np.full((n_trials, n_epochs, 6), np.nan)
+        self.nis = np.full((n_trials, n_epochs, 2), np.nan)
+
+    def put(self, k0: int, rec: FilterRecord) -> None:
+        """The record of the block that starts at epoch ``k0``."""
+        k1 = k0 + rec.est.shape[1]
+        self.var[:, k0:k1] = rec.var
+        self.innov[:, k0:k1] = rec.innov
+        self.nis[:, k0:k1, 0] = rec.nis_att
+        self.nis[:, k0:k1, 1] = rec.nis_rate
+
+    def attach(self, out: MethodOutput) -> MethodOutput:
+        out.var, out.innov, out.nis = self.var, self.innov, self.nis
+        return out
+
+
 def with_epoch_records(out: MethodOutput, rec: FilterRecord) -> MethodOutput:
     """``out`` with the per-epoch fields (``var``, ``innov``, ``nis``) of one filter's record."""
     out.var = rec.var

@@ -54,7 +54,12 @@ import numpy as np
 
 from qkf.transfer_alignment.config import Config, GlrConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import MethodOutput, new_filter, uses_settings
+from qkf.transfer_alignment.methods.base import (
+    EpochRecords,
+    MethodOutput,
+    new_filter,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.model import CALIB
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -106,6 +111,7 @@ def glr_filter(cfg: Config, data: ScenarioData, prm: GlrConfig, block: int = BLO
     g = np.zeros(b)
     last_reopen = np.full(b, -np.inf)  # time of the last re-opening, s
     est = np.empty((b, n, 16))
+    epochs = EpochRecords(b, n)
     g_log = np.empty((b, n))
     alarms = np.zeros((b, n), dtype=bool)
     reopened = np.zeros((b, n), dtype=bool)
@@ -137,6 +143,7 @@ def glr_filter(cfg: Config, data: ScenarioData, prm: GlrConfig, block: int = BLO
             kf.copy_state_from(saved)
             rec = step_recording(kf, data, k0, stop, prm.kappa, cov)
         est[:, k0:stop] = rec.est[:, : stop - k0]
+        epochs.put(k0, rec)
         reopen_calibration(kf, reopen, sigma)  # acts on P⁻_{k+1}: the next update uses it
         k0 = stop
     per_trial = reopened.sum() / b
@@ -145,7 +152,7 @@ def glr_filter(cfg: Config, data: ScenarioData, prm: GlrConfig, block: int = BLO
         f"{prm.threshold:g}); {per_trial:.2g} re-openings of σ = {prm.reset_ppm:g} ppm/µrad per "
         f"trial (quiet {prm.quiet_s:g} s); κ = {prm.kappa:.3g}"
     )
-    return MethodOutput(
+    out = MethodOutput(
         est=est,
         diverged=kf.diverged.copy(),
         kappa=np.full((b, n), prm.kappa),
@@ -153,6 +160,7 @@ def glr_filter(cfg: Config, data: ScenarioData, prm: GlrConfig, block: int = BLO
         notes={"glr": note},
         cov=cov.cov,
     )
+    return epochs.attach(out)
 
 
 @uses_settings("glr", GlrConfig)

@@ -30,6 +30,7 @@ import numpy as np
 
 from qkf.transfer_alignment.config import Config, QkfConfig
 from qkf.transfer_alignment.methods.base import (
+    EpochRecords,
     MethodOutput,
     action_values,
     decision_steps,
@@ -102,6 +103,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
     rewards = np.empty((b, len(starts)))
     actions = np.empty((b, len(starts)), dtype=np.int64)
     reward_sq = np.zeros(b)
+    epochs = EpochRecords(b, n)
     for j, k0 in enumerate(starts):
         k1 = min(n, k0 + period)
         eps = epsilon_at(cfg, k0 * cfg.scenario.dt_s)
@@ -118,6 +120,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
         rec_m = step_recording(main, data, k0, k1, kappas[s], cov)
         rec_e = explore.step_data(data, k0, k1, kappa=kappas[a])
         est[:, k0:k1] = rec_m.est
+        epochs.put(k0, rec_m)
         t_c = (k1 - k0) * cfg.scenario.dt_s
         r = (rec_e.loglik.sum(axis=1) - rec_m.loglik.sum(axis=1)) / t_c
         # a diverging explorative filter earns a prohibitive penalty (its ℓ is −inf)
@@ -127,7 +130,7 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
         rewards[:, j] = r
         q_update(table, s, a, r, qc.alpha, qc.gamma)
         s = greedy_switch(table, s, qc.switch_threshold, qc.hysteresis)
-    return MethodOutput(
+    out = MethodOutput(
         est=est,
         diverged=main.diverged.copy(),
         kappa=per_epoch(kappas[kappa_index], period, n),
@@ -140,3 +143,4 @@ def run_qkf(cfg: Config, data: ScenarioData) -> MethodOutput:
         },
         cov=cov.cov,
     )
+    return epochs.attach(out)

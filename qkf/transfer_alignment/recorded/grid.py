@@ -310,8 +310,8 @@ def load_recorded(cfg: Config, paths: Sequence[str | Path]) -> RecordedSet:
     nan = np.nan
 
     def stack(name: str, width: int) -> np.ndarray:
-        if not has_truth:
-            return np.full((b, n, width), nan)
+        if not has_truth:  # a read-only view: no memory for a day of NaN
+            return np.broadcast_to(np.full(width, nan), (b, n, width))
         return np.stack([getattr(tr, name) for tr in trials])
 
     masks = np.stack([tr.has_meas for tr in trials])

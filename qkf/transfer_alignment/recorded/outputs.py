@@ -87,7 +87,11 @@ def write_estimates(res: RecordedResult, path: Path) -> None:
                     table = _estimate_block(res, i, trial, info.epoch[start : start + BLOCK_ROWS])
                     if writer is None:
                         schema = table.schema
-                        writer = pacsv.CSVWriter(sink, schema)
+                        # a plain header, as every other CSV of a run (pyarrow quotes names)
+                        sink.write((",".join(ESTIMATE_COLUMNS) + "\n").encode())
+                        writer = pacsv.CSVWriter(
+                            sink, schema, write_options=pacsv.WriteOptions(include_header=False)
+                        )
                     writer.write_table(table.cast(schema))
         if writer is not None:
             writer.close()
@@ -225,15 +229,29 @@ def estimates_png(res: RecordedResult, trial: int = 0) -> bytes:
         d = res.recorded.data
         truth = np.concatenate([d.bias[trial, pick], d.calib[trial, pick]], axis=1)
         truth = truth / DISPLAY_UNIT[3:]
+    # the y range of the settled window: the first epochs' prior band would flatten the rest
+    settled = res.recorded.data.t[pick] >= res.cfg.run.settled_s
+    if not settled.any():
+        settled[:] = True
     for j, (ax, col) in enumerate(zip(axes.flat, CALIBRATION_COLUMNS, strict=True)):
+        span: list[np.ndarray] = []
         for i, m in enumerate(res.methods):
             est = m.out.est[trial, pick, 4 + j] / DISPLAY_UNIT[3 + j]
             (line,) = ax.plot(t, est, lw=1.0, label=m.name, color=f"C{i % 10}")
+            span.append(est[settled])
             if m.out.var is not None:
                 sd = np.sqrt(m.out.var[trial, pick, 3 + j]) / DISPLAY_UNIT[3 + j]
                 ax.fill_between(t, est - sd, est + sd, color=line.get_color(), alpha=0.2, lw=0)
+                span += [(est - sd)[settled], (est + sd)[settled]]
         if truth is not None:
             ax.plot(t, truth[:, j], "k--", lw=0.8, label="truth")
+            span.append(truth[settled, j])
+        vals = np.concatenate(span)
+        vals = vals[np.isfinite(vals)]
+        if vals.size:
+            lo, hi = float(vals.min()), float(vals.max())
+            pad = 0.15 * max(hi - lo, 1e-3 * max(abs(lo), abs(hi)), 1e-9)
+            ax.set_ylim(lo - pad, hi + pad)
         ax.set_title(col, fontsize=9)
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
@@ -281,7 +299,10 @@ def nis_png(res: RecordedResult, trial: int = 0) -> bytes | None:
         lo, hi = stats.chi2.ppf([0.025, 0.975], 3 * w_eff) / (3 * w_eff)
         ax.axhspan(lo, hi, color="0.85", zorder=0, label=f"95 % band of a mean of {w_eff}")
         ax.axhline(1.0, color="k", lw=0.6)
-        ax.set_yscale("log")
+        top = max((ln.get_ydata().max() for ln in ax.get_lines()[:-1] if ln.get_ydata().size),
+                  default=1.0)  # fmt: skip
+        if np.isfinite(top) and top > 3.0:  # a misfit of several times: a log axis reads it
+            ax.set_yscale("log")
         ax.set_ylabel(f"{name} NIS / 3")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t [s]")
