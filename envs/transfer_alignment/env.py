@@ -12,7 +12,15 @@ Arguments: ``scenario`` (preset name, config path or ``Config``), ``action_type`
 ``period_s``, ``observation`` (``v0`` … ``v2``, a name of
 :data:`~envs.transfer_alignment.observations.OBSERVATIONS`, fixed by the registered id),
 ``render_mode`` (``None`` or ``"rgb_array"``: :meth:`~TransferAlignmentEnv.render` returns a
-frame of the episode so far, below).
+frame of the episode so far, below), ``data`` (recorded runs, a CSV/Parquet file, a folder or a
+list: each episode replays one file, picked by the episode's generator, instead of a simulated
+draw; ``scenario`` then supplies the noise, prior and filter settings and the data the step and
+duration; docs/recorded_data.md).
+
+Replay without truth columns: the reward is 0 and ``info["reward_available"]`` is False (it is
+True otherwise); ``info["errors"]`` and ``info["crlb"]`` are NaN; a diverged filter still ends
+the episode. With truth the rewards are those of a simulated episode (the CRLB is the config's
+simulated trajectory's). ``info["file"]`` names the file replayed.
 
 =====================  ===================================================================
 Action                 Meaning
@@ -52,6 +60,7 @@ default) records nothing and ``render()`` returns ``None``. Stable-Baselines3's
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -88,11 +97,12 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
         render_mode: str | None = None,
+        data: str | Path | Sequence[str | Path] | None = None,
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
         self._driver = EpisodeDriver(
-            1, scenario, action_type, reward, overrides, period_s, observation
+            1, scenario, action_type, reward, overrides, period_s, observation, data
         )
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
@@ -110,7 +120,16 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         obs = self._driver.reset_env(0)
         self._started = True
         self._trace.clear()
-        return obs, {"kappa": 1.0, "diverged": False}
+        return obs, {"kappa": 1.0, "diverged": False, **self._data_info()}
+
+    def _data_info(self) -> dict[str, Any]:
+        """``reward_available`` (False: recorded data without truth, the reward is 0) and, on
+        recorded data, the ``file`` the episode replays."""
+        core = self._driver.core
+        info: dict[str, Any] = {"reward_available": core.reward_available}
+        if core.recorded is not None:
+            info["file"] = str(core.recorded.files[int(core.file_index[0])].path)
+        return info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
@@ -123,6 +142,7 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
             "errors": out.errors[0],
             "crlb": out.crlb[0],
             "t_s": float(out.t_s[0]),
+            **self._data_info(),
         }
         if self.render_mode is not None:  # record only what render() will draw
             self._trace.append(info["t_s"], kappa, calibration_curves(self._driver, out)[0])

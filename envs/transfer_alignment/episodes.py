@@ -12,6 +12,7 @@ rewards are documented in docs/environment.md.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods.base import decision_steps
 from qkf.transfer_alignment.metrics import state_errors, window_masks
 from qkf.transfer_alignment.params import FilterParams, n_epochs
+from qkf.transfer_alignment.recorded.grid import RecordedSet, load_recorded
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
@@ -67,11 +69,16 @@ class BatchedEpisodes:
         reward: str,
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
+        recorded: RecordedSet | None = None,
     ) -> None:
         self.cfg = cfg
         self.n = n
         self.reward_kind = reward
         self.reward = REWARDS[reward]
+        # replay of recorded runs (docs/recorded_data.md): episodes are its files; without
+        # truth there is no reward (0) and no CRLB or reference filter to compute for one
+        self.recorded = recorded
+        self.reward_available = recorded is None or recorded.has_truth
         self.observation_kind = OBSERVATIONS[observation]
         self.observation = self.observation_kind.factory(cfg, n, period_s)
         self.needs_likelihood = (
@@ -83,9 +90,15 @@ class BatchedEpisodes:
         self._start_pos = cfg.adaptive.actions.nominal_index() / (self.kappas.size - 1)
         self.n_epochs = n_epochs(cfg.scenario)
         self.episode_steps = math.ceil(self.n_epochs / self.period)
-        self.bound = crlb(cfg).bound
+        # the config's simulated trajectory: for recorded data with truth an approximation
+        self.bound = (
+            crlb(cfg).bound
+            if self.reward_available
+            else np.full((n_epochs(cfg.scenario), 15), np.nan)
+        )
         # the state_settled weights (a CRLB run), for the *_gain rewards' reference only
-        self.weights = state_weights(cfg) if self.reward.needs_reference else None
+        self.needs_reference = self.reward.needs_reference and self.reward_available
+        self.weights = state_weights(cfg) if self.needs_reference else None
         ne = self.n_epochs
         self.gyro = np.zeros((n, ne, 3))
         self.ads_q = np.zeros((n, ne, 4))
@@ -96,6 +109,7 @@ class BatchedEpisodes:
         self.has_meas = np.ones((n, ne), dtype=bool)
         self.t = np.arange(ne) * cfg.scenario.dt_s
         self.k = np.zeros(n, dtype=np.int64)
+        self.file_index = np.zeros(n, dtype=np.int64)  # recorded data: each episode's file
         self.kappa_pos = np.zeros(n)
         self.settled = window_masks(self.t, cfg.run.settled_s)["settled"]
         self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
@@ -104,18 +118,23 @@ class BatchedEpisodes:
         # the free-running nominal-κ filter of the *_gain rewards: run over the whole episode
         # when it starts (its errors per epoch, and its settled mean square for the relative
         # rewards), since it does not depend on the agent
-        self.needs_reference = self.reward.needs_reference
         self.reference_errors = np.zeros((n, ne, 15)) if self.needs_reference else None
         self.reference_ms = np.ones(n)  # settled state_settled² of the reference, per episode
 
     def reset(self, i: int, seed: int) -> np.ndarray:
-        """Draw episode ``i`` from ``seed``; returns its first observation."""
-        d = simulate(self.cfg, seed, [0])
-        self.gyro[i], self.ads_q[i], self.ads_rate[i] = d.gyro[0], d.ads_q[0], d.ads_rate[0]
-        self.q_true[i], self.bias[i], self.calib[i] = d.q_true[0], d.bias[0], d.calib[0]
-        self.has_meas[i] = d.has_meas
+        """Draw episode ``i`` from ``seed`` (recorded data: the file ``seed`` picks); returns
+        its first observation."""
+        if self.recorded is None:
+            d, row = simulate(self.cfg, seed, [0]), 0
+        else:
+            d = self.recorded.data
+            row = int(np.random.default_rng(seed).integers(d.n_trials))
+        self.file_index[i] = row
+        self.gyro[i], self.ads_q[i], self.ads_rate[i] = d.gyro[row], d.ads_q[row], d.ads_rate[row]
+        self.q_true[i], self.bias[i], self.calib[i] = d.q_true[row], d.bias[row], d.calib[row]
+        self.has_meas[i] = d.has_meas if d.has_meas.ndim == 1 else d.has_meas[row]
         one = TransferAlignmentKF(self.params, 1)
-        one.initialize(d.ads_q[:, 0])
+        one.initialize(d.ads_q[row : row + 1, 0])
         self.kf.load_trial(i, one)
         self._run_reference(np.array([i]))
         return self._restart(np.array([i]))[0]
@@ -210,8 +229,11 @@ class BatchedEpisodes:
             weights=self.weights,
             reference_ms=self.reference_ms,
         )
-        reward = np.asarray(self.reward.fn(outcome), dtype=float)
-        reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)
+        if self.reward_available:
+            reward = np.asarray(self.reward.fn(outcome), dtype=float)
+            reward = np.where(diverged | ~np.isfinite(reward), DIVERGENCE_REWARD, reward)
+        else:  # recorded data without truth: no reward (divergence still ends the episode)
+            reward = np.zeros(self.n)
         view = PeriodView(
             record=rec,
             valid=valid,
@@ -257,6 +279,7 @@ class EpisodeDriver:
         overrides: list[str] | None,
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
+        data: str | Path | Sequence[str | Path] | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("num_envs must be at least 1")
@@ -268,9 +291,14 @@ class EpisodeDriver:
             known = ", ".join(OBSERVATIONS.names())
             raise ValueError(f"unknown observation {observation!r}; known: {known}")
         self.cfg = scenario if isinstance(scenario, Config) else load_scenario(scenario, overrides)
+        recorded = None
+        if data is not None:  # the data set the step, duration and episodes (their files)
+            paths = [data] if isinstance(data, str | Path) else list(data)
+            recorded = load_recorded(self.cfg, paths)
+            self.cfg = recorded.cfg
         self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
         self.observation_space: spaces.Box = observation_box(OBSERVATIONS[observation].size)
-        self.core = BatchedEpisodes(self.cfg, n, reward, period_s, observation)
+        self.core = BatchedEpisodes(self.cfg, n, reward, period_s, observation, recorded)
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
 
     @property

@@ -180,19 +180,22 @@ def run_chunk(
     report: MethodReport | None = None,
     source: DataSource = simulate,
     keep: KeepOutput | None = None,
+    weights: np.ndarray | None = None,
 ) -> ChunkResult:
     """Simulate trials ``ids`` (or take them from ``source``) and run every method on them (the
     unit of work of a backend).
 
     ``report``: see :data:`MethodReport` (progress only; the results do not depend on it);
-    ``keep``: see :data:`KeepOutput`.
+    ``keep``: see :data:`KeepOutput`; ``weights``: those of ``state_settled`` (SI), when not the
+    config's own (:func:`~qkf.transfer_alignment.judging.state_weights`).
     """
     n = n_epochs(cfg.scenario)
     sample = np.arange(0, n, kappa_sampling(cfg))
     banded = band_epochs(n)
     cov_epochs = covariance_epochs(cfg)
     data = source(cfg, seed, ids)
-    weights = state_weights(cfg) / DISPLAY_UNIT  # state_settled's, in display units
+    # state_settled's, in display units
+    weights = (state_weights(cfg) if weights is None else weights) / DISPLAY_UNIT
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
     for m in methods:
         if report is not None:
@@ -261,6 +264,8 @@ def run_benchmark(
     workers: int | None = None,
     source: DataSource = simulate,
     keep: KeepOutput | None = None,
+    bound: CrlbResult | None = None,
+    weights: np.ndarray | None = None,
 ) -> BenchResult:
     """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario.
 
@@ -271,7 +276,9 @@ def run_benchmark(
     The methods' settings sections are checked first (:func:`resolve_method_settings`:
     ``ConfigError`` before any work), and the result's ``config`` is the resolved one.
     ``source`` / ``keep``: recorded data instead of simulated trials, and a hook that sees
-    every method's output (:data:`DataSource`, :data:`KeepOutput`; in this process only).
+    every method's output (:data:`DataSource`, :data:`KeepOutput`; in this process only);
+    ``bound`` / ``weights``: the CRLB of the report and the ``state_settled`` weights (SI),
+    when not those of ``cfg``'s simulated scenario (recorded data).
     """
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
@@ -319,9 +326,10 @@ def run_benchmark(
                 report=_method_progress(bar),
                 source=source,
                 keep=keep,
+                weights=weights,
             )
             if in_process
-            else partial(run_chunk, cfg, prepared, seed, source=source)
+            else partial(run_chunk, cfg, prepared, seed, source=source, weights=weights)
         )
         done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
@@ -393,7 +401,7 @@ def run_benchmark(
         trials=trials,
         t=t,
         methods=results,
-        bound=crlb(cfg),
+        bound=crlb(cfg) if bound is None else bound,
         kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
         backend=backend,
         workers=workers,

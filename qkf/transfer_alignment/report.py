@@ -441,7 +441,8 @@ def summary_markdown(res: BenchResult) -> str:
         ]
         lines.append(f"| {m.name} | {m.trials} | " + " | ".join(vals) + f" | {m.runtime_s:.2f} |")
     vals = [f"{crlb_summary[c]:.4g}" for c in METRIC_COLUMNS]
-    lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
+    if any(np.isfinite(crlb_summary[c]) for c in METRIC_COLUMNS):  # recorded runs have none
+        lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
     judged = [m for m in res.methods if not np.isnan(m.summary.get("nees_mean", np.nan))]
     if judged:
         lines += [

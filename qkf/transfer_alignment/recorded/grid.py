@@ -67,6 +67,7 @@ class RecordedSet:
     """Recorded files as the trials of one run."""
 
     cfg: Config  # the config with the data's step, duration and trial count
+    base_cfg: Config  # the config as given: its simulated scenario sets the state_settled weights
     data: ScenarioData  # truth arrays NaN without truth columns
     files: tuple[GridInfo, ...]
     has_truth: bool
@@ -336,7 +337,9 @@ def load_recorded(cfg: Config, paths: Sequence[str | Path]) -> RecordedSet:
             "run": cfg.run.model_copy(update={"trials": b}),
         }
     )
-    return RecordedSet(cfg=revalidated(run_cfg), data=data, files=tuple(infos), has_truth=has_truth)
+    return RecordedSet(
+        cfg=revalidated(run_cfg), base_cfg=cfg, data=data, files=tuple(infos), has_truth=has_truth
+    )
 
 
 def revalidated(cfg: Config) -> Config:

@@ -173,8 +173,8 @@ def summary_markdown(res: RecordedResult) -> str:
             for q in qs:
                 lines.append(
                     f"| {m.name} | {t} | {q.block} | {q.epochs:,} | {_fmt(q.nis_mean)} | "
-                    f"[{_fmt(q.nis_mean_lo)}, {_fmt(q.nis_mean_hi)}] | {_fmt(100 * q.in_band)} % "
-                    f"| {_fmt(q.whiteness_max, 2)} | {_fmt(100 * q.whiteness_outside, 2)} % |"
+                    f"[{_fmt(q.nis_mean_lo)}, {_fmt(q.nis_mean_hi)}] | {_pct(q.in_band)} "
+                    f"| {_fmt(q.whiteness_max, 2)} | {_pct(q.whiteness_outside)} |"
                 )
                 flags += [f"- **{m.name}**, trial {t}: {f}" for f in q.flags]
     lines.append("")
@@ -206,6 +206,10 @@ def summary_markdown(res: RecordedResult) -> str:
     runtime = ", ".join(f"{m.name} {m.runtime_s:.2f} s" for m in res.methods)
     lines += ["", f"Run time: {runtime}.", ""]
     return "\n".join(lines)
+
+
+def _pct(v: float) -> str:
+    return "–" if not np.isfinite(v) else f"{100 * v:.1f} %"
 
 
 def _decimate(n: int, points: int = 2000) -> np.ndarray:

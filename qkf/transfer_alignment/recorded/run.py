@@ -24,6 +24,8 @@ from qkf.transfer_alignment.benchmark import (
     run_benchmark,
 )
 from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.crlb import CrlbResult
+from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     MethodOutput,
     NamedMethod,
@@ -91,6 +93,14 @@ class RecordedSource:
         return _slice(self.data, ids)
 
 
+def no_bound(t: np.ndarray) -> CrlbResult:
+    """The CRLB of a recorded run: not known (NaN). The bound needs the true rates along the
+    recorded trajectory, which the files do not carry; the config's simulated trajectory's
+    bound would describe another run."""
+    nan = np.broadcast_to(np.nan, (t.size, 15))
+    return CrlbResult(t=t, bound=nan, cov=np.broadcast_to(np.nan, (t.size, 15, 15)))
+
+
 def _named(methods: str | Sequence[str | NamedMethod]) -> list[NamedMethod]:
     if isinstance(methods, str):
         return parse_methods(methods)
@@ -126,6 +136,8 @@ def run_recorded(
             progress=progress,
             source=RecordedSource(rec.data),
             keep=keep,
+            bound=no_bound(rec.data.t),
+            weights=state_weights(rec.base_cfg),
         )
         runtime = {m.name: m.runtime_s for m in bench.methods}
     else:
