@@ -334,3 +334,27 @@ def test_per_epoch_records_equal_the_filter_replayed_with_the_kappa_trace(spec: 
     np.testing.assert_allclose(out.var, replay.var, rtol=1e-12)
     np.testing.assert_allclose(out.nis, replay.nis, rtol=1e-9)
     np.testing.assert_allclose(out.innov, replay.innov, rtol=1e-9, atol=1e-20)
+
+
+def test_cli_round_trip_estimates_csv_equals_the_simulated_filter(tmp_path: Path) -> None:
+    """qkf record → qkf bench --data: estimates.csv holds the simulated run's estimates."""
+    from qkf.transfer_alignment.recorded.outputs import CALIBRATION_COLUMNS
+    from qkf.transfer_alignment.states import DISPLAY_UNIT
+
+    sets = ["--set", "scenario.duration_s=300"]
+    data_file = tmp_path / "sim.csv"
+    r = CliRunner().invoke(app, ["record", "thermal_snap", *sets, "--seed", "5", "--trial", "2",
+                                 "--out", str(data_file)])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "run"
+    r = CliRunner().invoke(app, ["bench", "thermal_snap", *sets, "--data", str(data_file),
+                                 "--methods", "kf", "--out", str(out), "--quiet"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    cfg = load_config("thermal_snap", ["scenario.duration_s=300"])
+    direct = resolve_method("kf").method(cfg, simulate(cfg, 5, [2]))
+    rows = read_csv(out / "estimates.csv")
+    got = np.array([[float(row[c]) for c in CALIBRATION_COLUMNS] for row in rows])
+    q = np.array([[float(row[c]) for c in ("qx", "qy", "qz", "qw")] for row in rows])
+    assert rel_close(got, direct.est[0, :, 4:] / DISPLAY_UNIT[3:])
+    assert rel_close(q, direct.est[0, :, :4])
+    assert (out / "rms.csv").is_file() and (out / "paired.csv").exists() is False  # one method

@@ -92,6 +92,8 @@ class BenchResult:
     paired: list[PairedRatio] = field(default_factory=list)
     band_t: np.ndarray = field(default_factory=lambda: np.empty(0))  # (T,) s
     nees_t: np.ndarray = field(default_factory=lambda: np.empty(0))  # (M,) s
+    # state_settled's weights (15,) SI when not the config's own (state_weights): recorded runs
+    weights: np.ndarray | None = None
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -408,6 +410,7 @@ def run_benchmark(
         paired=paired_ratios(labels, values, replicates, baselines(cfg, labels), boot.level),
         band_t=t[band_epochs(n)],
         nees_t=nees_t,
+        weights=weights,
     )
 
 

@@ -406,8 +406,9 @@ def nees_window_text(res: BenchResult) -> str:
 
 def summary_markdown(res: BenchResult) -> str:
     cfg = res.config
+    weights = state_weights(cfg) if res.weights is None else res.weights
     crlb_summary = summarize(
-        res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s, state_weights(cfg) / DISPLAY_UNIT
+        res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s, weights / DISPLAY_UNIT
     )
     verdicts = {(p.method, p.metric): p.verdict for p in res.paired if p.baseline == "kf"}
     head = ["method", "trials"]
@@ -523,21 +524,25 @@ def _gap_lines(res: BenchResult) -> list[str]:
     return out
 
 
-def bench_tables(res: BenchResult) -> dict[str, bytes]:
+def bench_tables(res: BenchResult, per_epoch: bool = True) -> dict[str, bytes]:
     """The text files of a benchmark, rendered: rms.csv, summary.csv, summary.md, crlb.csv and
-    (if any method chose κ) kappa.csv."""
-    rms_rows = [
-        [m.name, float(t), *map(float, row)]
-        for m in res.methods
-        for t, row in zip(res.t, m.rms / DISPLAY_UNIT, strict=True)
-    ]
-    files = {
-        "rms.csv": csv_text(("method", "t_s", *STATE_COLUMNS), rms_rows),
+    (if any method chose κ) kappa.csv. ``per_epoch`` False leaves out the two files with a row
+    per epoch (rms.csv, crlb.csv), for a caller that streams them (a long recorded run)."""
+    files = {}
+    if per_epoch:
+        rms_rows = [
+            [m.name, float(t), *map(float, row)]
+            for m in res.methods
+            for t, row in zip(res.t, m.rms / DISPLAY_UNIT, strict=True)
+        ]
+        files["rms.csv"] = csv_text(RMS_COLUMNS, rms_rows)
+    files |= {
         "summary.csv": csv_text(SUMMARY_COLUMNS, summary_rows(res)),
         "trials.csv": csv_text(TRIAL_COLUMNS, trial_rows(res)),
         "summary.md": summary_markdown(res),
-        "crlb.csv": crlb_csv_text(res.bound),
     }
+    if per_epoch:
+        files["crlb.csv"] = crlb_csv_text(res.bound)
     if res.paired:
         files["paired.csv"] = csv_text(PAIRED_COLUMNS, paired_rows(res))
     if any(m.band is not None for m in res.methods):
@@ -547,6 +552,10 @@ def bench_tables(res: BenchResult) -> dict[str, bytes]:
     if any(m.kappa is not None for m in res.methods):
         files["kappa.csv"] = csv_text(("method", "trial", "t_s", "kappa"), kappa_rows(res))
     return {name: text.encode() for name, text in files.items()}
+
+
+RMS_COLUMNS: tuple[str, ...] = ("method", "t_s", *STATE_COLUMNS)
+"""rms.csv: per method and epoch, the RMS over trials of each state's error (display units)."""
 
 
 def bench_figures(res: BenchResult) -> dict[str, bytes]:

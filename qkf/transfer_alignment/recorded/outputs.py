@@ -8,6 +8,7 @@ to disk in blocks of rows (pyarrow's CSV writer) rather than rendered in memory.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,12 @@ from qkf.transfer_alignment.recorded.quality import (
     nis_band,
 )
 from qkf.transfer_alignment.recorded.run import RecordedResult
-from qkf.transfer_alignment.report import bench_figures, bench_manifest, bench_tables
+from qkf.transfer_alignment.report import (
+    RMS_COLUMNS,
+    bench_figures,
+    bench_manifest,
+    bench_tables,
+)
 from qkf.transfer_alignment.states import DISPLAY_UNIT, STATE_COLUMNS
 
 CALIBRATION_COLUMNS = STATE_COLUMNS[3:]
@@ -78,23 +84,47 @@ def _estimate_block(res: RecordedResult, run_index: int, trial: int, rows: np.nd
 
 def write_estimates(res: RecordedResult, path: Path) -> None:
     """Stream estimates.csv to ``path`` (a staging folder's file: written once)."""
-    schema = None
-    with pa.OSFile(str(path), "wb") as sink:
-        writer: pacsv.CSVWriter | None = None
+
+    def blocks() -> Iterator[pa.Table]:
         for i in range(len(res.methods)):
             for trial, info in enumerate(res.recorded.files):
                 for start in range(0, info.epoch.size, BLOCK_ROWS):
-                    table = _estimate_block(res, i, trial, info.epoch[start : start + BLOCK_ROWS])
-                    if writer is None:
-                        schema = table.schema
-                        # a plain header, as every other CSV of a run (pyarrow quotes names)
-                        sink.write((",".join(ESTIMATE_COLUMNS) + "\n").encode())
-                        writer = pacsv.CSVWriter(
-                            sink, schema, write_options=pacsv.WriteOptions(include_header=False)
-                        )
-                    writer.write_table(table.cast(schema))
+                    yield _estimate_block(res, i, trial, info.epoch[start : start + BLOCK_ROWS])
+
+    # a plain header, as every other CSV of a run (pyarrow would quote the names)
+    stream_csv(path, ESTIMATE_COLUMNS, blocks())
+
+
+def stream_csv(path: Path, header: tuple[str, ...], blocks: Iterator[pa.Table]) -> None:
+    """Write ``header`` and the tables of ``blocks`` (its columns, in order) to ``path``."""
+    with pa.OSFile(str(path), "wb") as sink:
+        sink.write((",".join(header) + "\n").encode())
+        writer: pacsv.CSVWriter | None = None
+        schema = None
+        for table in blocks:
+            if writer is None:
+                schema = table.schema
+                opts = pacsv.WriteOptions(include_header=False)
+                writer = pacsv.CSVWriter(sink, schema, write_options=opts)
+            writer.write_table(table.cast(schema))
         if writer is not None:
             writer.close()
+
+
+def _per_epoch_blocks(
+    names: list[str], t: np.ndarray, values: list[np.ndarray]
+) -> Iterator[pa.Table]:
+    """rms.csv / crlb.csv rows: per name (None: no method column), ``t`` and its (N, 15)."""
+    for name, v in zip(names, values, strict=True):
+        for start in range(0, t.size, BLOCK_ROWS):
+            sl = slice(start, start + BLOCK_ROWS)
+            cols: dict[str, Any] = {}
+            if name:
+                cols["method"] = pa.array([name] * t[sl].size, pa.string())
+            cols["t_s"] = t[sl]
+            for j, c in enumerate(STATE_COLUMNS):
+                cols[c] = np.ascontiguousarray(v[sl, j])
+            yield pa.table(cols)
 
 
 def quality_rows(res: RecordedResult) -> list[list[object]]:
@@ -345,7 +375,9 @@ def write_recorded_run(
     if anything fails)."""
     files: dict[str, bytes] = {}
     if res.bench is not None:
-        files.update(bench_tables(res.bench))
+        # rms.csv and crlb.csv have a row per epoch: streamed below (a day at 10 Hz would take
+        # gigabytes rendered in memory)
+        files.update(bench_tables(res.bench, per_epoch=False))
         files.update(bench_figures(res.bench))
     recorded_md = summary_markdown(res)
     files["summary.md"] = (
@@ -362,5 +394,20 @@ def write_recorded_run(
         for name, content in files.items():
             atomic_write_bytes(stage / name, content)
         write_estimates(res, stage / "estimates.csv")
+        streamed = ["estimates.csv"]
+        if res.bench is not None:
+            b = res.bench
+            stream_csv(
+                stage / "rms.csv",
+                RMS_COLUMNS,
+                _per_epoch_blocks([m.name for m in b.methods], b.t,
+                                  [m.rms / DISPLAY_UNIT for m in b.methods]),
+            )  # fmt: skip
+            stream_csv(
+                stage / "crlb.csv",
+                RMS_COLUMNS[1:],
+                _per_epoch_blocks([""], b.bound.t, [b.bound.bound / DISPLAY_UNIT]),
+            )
+            streamed += ["rms.csv", "crlb.csv"]
         write_manifest(stage, recorded_manifest(res, command))
-    return [out / name for name in (*files, "estimates.csv", "run.json")]
+    return [out / name for name in (*files, *streamed, "run.json")]
