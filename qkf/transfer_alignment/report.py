@@ -119,23 +119,36 @@ def shared_legend(fig: Figure, axes: Any, ncol: int = 6) -> None:
                    ncol=min(ncol, len(entries)), fontsize=8, frameon=False)  # fmt: skip
 
 
+PLOT_POINTS = 20_000
+"""Most epochs a time plot draws per curve; longer runs (a recorded day at 10 Hz) are drawn at
+every k-th epoch, the last included (the files keep every epoch)."""
+
+
+def plot_epochs(n: int) -> np.ndarray:
+    """The epochs a time plot draws: all of them up to :data:`PLOT_POINTS`."""
+    step = -(-n // PLOT_POINTS)
+    return np.arange(n) if step == 1 else np.unique(np.append(np.arange(0, n, step), n - 1))
+
+
 def rms_groups_figure(res: BenchResult) -> Figure:
     """RMS over trials vs time per state group for every method, with its bootstrap band, the
     CRLB, the maneuvers and the calibration jumps; one shared legend below the panels."""
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), sharex=True, layout="constrained")
-    bound_ms = (res.bound.bound / DISPLAY_UNIT) ** 2
+    pick = plot_epochs(res.t.size)
+    t = res.t[pick]
+    bound_ms = (res.bound.bound[pick] / DISPLAY_UNIT) ** 2
     crlb_groups = group_rms(bound_ms)
     level = 100 * res.config.run.bootstrap.level
     for gi, (ax, (g, title)) in enumerate(zip(axes.ravel(), GROUP_TITLES.items(), strict=True)):
         mark_events(ax, res.config)
         for i, m in enumerate(res.methods):
-            style = method_style(i, res.t.size)
-            ax.semilogy(res.t, group_rms((m.rms / DISPLAY_UNIT) ** 2)[g], label=m.name, lw=1.2,
+            style = method_style(i, t.size)
+            ax.semilogy(t, group_rms((m.rms[pick] / DISPLAY_UNIT) ** 2)[g], label=m.name, lw=1.2,
                         **style)  # fmt: skip
             if m.band is not None and res.band_t.size:
                 lo, hi = m.band[:, gi, 1], m.band[:, gi, 2]
                 ax.fill_between(res.band_t, lo, hi, color=style["color"], alpha=0.18, lw=0)
-        ax.semilogy(res.t, crlb_groups[g], "k--", lw=1.0, label="CRLB (1σ)")
+        ax.semilogy(t, crlb_groups[g], "k--", lw=1.0, label="CRLB (1σ)")
         ax.set_title(title)
         ax.set_ylabel(f"RMS [{UNITS[g]}]")
         ax.grid(True, which="both", alpha=0.3)
@@ -246,13 +259,15 @@ def rms_states_figure(res: BenchResult) -> Figure:
     """RMS over trials vs time for each of the 15 states, with the CRLB: one row per group
     (misalignment: two), a title per state, axis labels with units, one shared legend."""
     fig, axes = plt.subplots(5, 3, figsize=(13, 15), sharex=True, layout="constrained")
-    bound = res.bound.bound / DISPLAY_UNIT
+    pick = plot_epochs(res.t.size)
+    t = res.t[pick]
+    bound = res.bound.bound[pick] / DISPLAY_UNIT
     for i, ax in enumerate(axes.ravel()):
         mark_events(ax, res.config)
         for j, m in enumerate(res.methods):
-            ax.semilogy(res.t, m.rms[:, i] / DISPLAY_UNIT[i], lw=1.0, label=m.name,
-                        **method_style(j, res.t.size))  # fmt: skip
-        ax.semilogy(res.t, bound[:, i], "k--", lw=0.8, label="CRLB (1σ)")
+            ax.semilogy(t, m.rms[pick, i] / DISPLAY_UNIT[i], lw=1.0, label=m.name,
+                        **method_style(j, t.size))  # fmt: skip
+        ax.semilogy(t, bound[:, i], "k--", lw=0.8, label="CRLB (1σ)")
         ax.set_title(state_title(STATE_COLUMNS[i]), fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
         if i % 3 == 0:

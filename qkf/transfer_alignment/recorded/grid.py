@@ -191,6 +191,8 @@ def _check_gaps(path: Path, first: int, t: np.ndarray, used: np.ndarray, limit: 
 
 def _hold(values: np.ndarray, epoch: np.ndarray, n: int) -> np.ndarray:
     """Per grid epoch, the value of the last row at or before it (rows at ``epoch``)."""
+    if epoch.size == n:  # no dropped sample: the rows themselves
+        return values
     owner = np.searchsorted(epoch, np.arange(n), side="right") - 1
     return values[owner]
 
@@ -313,9 +315,14 @@ def load_recorded(cfg: Config, paths: Sequence[str | Path]) -> RecordedSet:
     def stack(name: str, width: int) -> np.ndarray:
         if not has_truth:  # a read-only view: no memory for a day of NaN
             return np.broadcast_to(np.full(width, nan), (b, n, width))
-        return np.stack([getattr(tr, name) for tr in trials])
+        return trials_of(name)
 
     masks = np.stack([tr.has_meas for tr in trials])
+
+    def trials_of(name: str) -> np.ndarray:  # one file: a view, not a copy of a day of data
+        parts = [getattr(tr, name) for tr in trials]
+        return parts[0][None] if len(parts) == 1 else np.stack(parts)
+
     data = ScenarioData(
         t=np.arange(n) * dt,
         dt=dt,
@@ -323,9 +330,9 @@ def load_recorded(cfg: Config, paths: Sequence[str | Path]) -> RecordedSet:
         q_true=stack("q_true", 4),
         bias=stack("bias", 3),
         calib=stack("calib", 9),
-        gyro=np.stack([tr.gyro for tr in trials]),
-        ads_q=np.stack([tr.ads_q for tr in trials]),
-        ads_rate=np.stack([tr.ads_rate for tr in trials]),
+        gyro=trials_of("gyro"),
+        ads_q=trials_of("ads_q"),
+        ads_rate=trials_of("ads_rate"),
         # one mask for all trials when they agree (what every method has always been given)
         has_meas=masks[0].copy() if (masks == masks[0]).all() else masks,
         trial_ids=np.arange(b),
