@@ -99,3 +99,8 @@ def test_the_shipped_policy_steps_through_a_recording(tmp_path: Path) -> None:
         if term or trunc:
             break
     assert trunc and len(kappas) == env.unwrapped.episode_steps
+
+
+def test_the_batched_vector_env_refuses_recorded_data(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="does not replay recorded data"):
+        gym.make_vec(ENV, num_envs=2, data=tmp_path / "x.csv")

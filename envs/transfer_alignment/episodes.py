@@ -176,6 +176,11 @@ class BatchedEpisodes:
         return self.observation.reset(rows, self._start_pos)
 
     def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:
+        """The period's epochs of ``arr`` (N, epochs, …) from each episode's ``k0`` on (the last
+        epoch repeated past the end)."""
+        first = int(k0[0])
+        if first + self.period <= self.n_epochs and bool(np.all(k0 == first)):
+            return arr[:, first : first + self.period]  # episodes in step: a view, no gather
         idx = np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_epochs - 1)
         return np.take_along_axis(arr, idx.reshape(idx.shape + (1,) * (arr.ndim - 2)), axis=1)
 
@@ -194,17 +199,28 @@ class BatchedEpisodes:
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
-        truth = (
-            self._window(self.q_true, k0),
-            self._window(self.bias, k0),
-            self._window(self.calib, k0),
-        )
-        err = state_errors(rec.est, *truth)
+        last = np.maximum(valid.sum(axis=1) - 1, 0)
+        rows = np.arange(self.n)
+        if self.reward.uses_truth:  # the errors over the whole period
+            truth = (
+                self._window(self.q_true, k0),
+                self._window(self.bias, k0),
+                self._window(self.calib, k0),
+            )
+            err = state_errors(rec.est, *truth)
+            err_last = err[rows, last]
+        else:  # only info's errors at the period's last epoch; the reward does not see them
+            at = np.minimum(k0 + last, self.n_epochs - 1)
+            err_last = state_errors(
+                rec.est[rows, last][:, None],
+                self.q_true[rows, at][:, None],
+                self.bias[rows, at][:, None],
+                self.calib[rows, at][:, None],
+            )[:, 0]
+            err = np.full((self.n, self.period, 15), np.nan)
         ref_err = None
         if self.reference_errors is not None:
             ref_err = self._window(self.reference_errors, k0)
-        last = np.maximum(valid.sum(axis=1) - 1, 0)
-        rows = np.arange(self.n)
         diverged = self.kf.diverged.copy()
         steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has no valid epoch
         dll = None
@@ -252,7 +268,7 @@ class BatchedEpisodes:
             terminated=diverged,
             truncated=~diverged & (self.k >= self.n_epochs),
             kappa=np.asarray(kappa, dtype=float),
-            errors=err[rows, last] / DISPLAY_UNIT,
+            errors=err_last / DISPLAY_UNIT,
             crlb=outcome.bound[rows, last] / DISPLAY_UNIT,
             t_s=self.t[np.minimum(k0 + last, self.n_epochs - 1)],
             est=rec.est,

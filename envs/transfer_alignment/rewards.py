@@ -55,7 +55,7 @@ class PeriodOutcome:
 
     record: FilterRecord  # the agent's filter over the period (covariance if ``needs_cov``)
     loglik_gain: np.ndarray | None  # (N,) ℓ_agent − ℓ_nominal over the valid epochs, if needed
-    errors: np.ndarray  # (N, P, 15) true estimation errors
+    errors: np.ndarray  # (N, P, 15) true estimation errors (NaN unless the reward uses_truth)
     bound: np.ndarray  # (N, P, 15) CRLB 1-σ
     valid: np.ndarray  # (N, P) bool: epochs inside the episode
     steps: np.ndarray  # (N,) valid epochs (at least 1)

@@ -46,8 +46,13 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
         render_mode: str | None = None,
-        **_: Any,
+        **kwargs: Any,
     ) -> None:
+        if kwargs.get("data") is not None:  # not silently a simulation instead
+            raise ValueError(
+                "the batched vector environment does not replay recorded data; use "
+                "gym.make(id, data=...) per environment (e.g. in SubprocVecEnv)"
+            )
         check_render_mode(render_mode)
         self.render_mode = render_mode
         self.num_envs = num_envs

@@ -190,7 +190,8 @@ class TransferAlignmentKF:
         )
         stats = np.empty((b, n, 5))
         p = self.params
-        _ta_kernel.run_block(
+        run = _ta_kernel.run_block if b >= _ta_kernel.SERIAL_BELOW else _ta_kernel.run_block_serial
+        run(
             _ta_kernel.FilterState(self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged),
             _ta_kernel.Inputs(
                 gyro=gyro,

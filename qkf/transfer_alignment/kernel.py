@@ -751,3 +751,17 @@ def run_block(state: FilterState, inputs: Inputs, c: Constants, rec: Records) ->
     # outside the loop by a call cannot enter it (numba#5299).
     for bi in nb.prange(state.q_hat.shape[0]):
         _run_trial(bi, state, inputs, c, rec)
+
+
+SERIAL_BELOW = 4
+"""Batches of fewer trials run :func:`run_block_serial`: for a batch of one (the single
+environment, a recorded run) a parallel region only costs — its threads are started and joined
+every call, and wait for cores whenever other processes hold them (docs/performance.md)."""
+
+
+@nb.njit(cache=True, fastmath=FASTMATH)
+def run_block_serial(state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
+    """:func:`run_block` with the trials one after the other in the calling thread (the same
+    per-trial code, so the same numbers bit for bit)."""
+    for bi in range(state.q_hat.shape[0]):
+        _run_trial(bi, state, inputs, c, rec)
