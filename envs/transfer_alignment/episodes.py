@@ -124,6 +124,21 @@ class BatchedEpisodes:
     def reset(self, i: int, seed: int) -> np.ndarray:
         """Draw episode ``i`` from ``seed`` (recorded data: the file ``seed`` picks); returns
         its first observation."""
+        return self.reset_many(np.array([i]), [seed])[0]
+
+    def reset_many(self, rows: np.ndarray, seeds: Sequence[int]) -> np.ndarray:
+        """:meth:`reset` of episodes ``rows``, each from its seed; their first observations
+        (len(rows), size). The same episodes as one :meth:`reset` each, but the reference
+        filter runs once for all of them: in a vector environment every episode ends at the
+        same step, and one batch of reference filters runs in parallel (docs/performance.md)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        for i, seed in zip(rows, seeds, strict=True):
+            self._draw(int(i), int(seed))
+        self._run_reference(rows)
+        return self._restart(rows)
+
+    def _draw(self, i: int, seed: int) -> None:
+        """Episode ``i``'s data from ``seed`` and a fresh filter on it."""
         if self.recorded is None:
             d, row = simulate(self.cfg, seed, [0]), 0
         else:
@@ -136,8 +151,6 @@ class BatchedEpisodes:
         one = TransferAlignmentKF(self.params, 1)
         one.initialize(d.ads_q[row : row + 1, 0])
         self.kf.load_trial(i, one)
-        self._run_reference(np.array([i]))
-        return self._restart(np.array([i]))[0]
 
     def load(self, data: ScenarioData) -> np.ndarray:
         """Run the N episodes on given simulated data (N trials) instead of drawing them;
@@ -175,42 +188,57 @@ class BatchedEpisodes:
         self.kappa_pos[rows] = self._start_pos
         return self.observation.reset(rows, self._start_pos)
 
-    def _window(self, arr: np.ndarray, k0: np.ndarray) -> np.ndarray:
-        """The period's epochs of ``arr`` (N, epochs, …) from each episode's ``k0`` on (the last
-        epoch repeated past the end)."""
+    def _period_index(self, k0: np.ndarray) -> slice | np.ndarray:
+        """Where the period of every episode lies in the episode arrays: a slice when all
+        episodes are at the same epoch and the period fits (always, for one episode), else the
+        epochs (N, period) of each, the last one repeated past the end."""
         first = int(k0[0])
-        if first + self.period <= self.n_epochs and bool(np.all(k0 == first)):
-            return arr[:, first : first + self.period]  # episodes in step: a view, no gather
-        idx = np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_epochs - 1)
-        return np.take_along_axis(arr, idx.reshape(idx.shape + (1,) * (arr.ndim - 2)), axis=1)
+        if first + self.period <= self.n_epochs and bool((k0 == first).all()):
+            return slice(first, first + self.period)
+        return np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_epochs - 1)
+
+    @staticmethod
+    def _window(arr: np.ndarray, where: slice | np.ndarray) -> np.ndarray:
+        """The period's epochs of ``arr`` (N, epochs, …) at ``where`` (:meth:`_period_index`):
+        a view for a slice, a gather otherwise."""
+        if isinstance(where, slice):
+            return arr[:, where]
+        return np.take_along_axis(arr, where.reshape(where.shape + (1,) * (arr.ndim - 2)), axis=1)
 
     def step(self, kappa: np.ndarray, kappa_pos: np.ndarray) -> StepOutput:
         """Run one decision period in every episode with process-noise factors ``kappa`` (N,)."""
         k0 = self.k.copy()
+        where = self._period_index(k0)
         # Episodes are synchronous in length; a period that would run past the end is cut by
         # masking its extra epochs out as measurement-free repeats of the last one.
-        valid = (k0[:, None] + np.arange(self.period)[None, :]) < self.n_epochs
+        if isinstance(where, slice):  # the whole period inside every episode
+            valid = np.ones((self.n, self.period), dtype=bool)
+            last = np.full(self.n, self.period - 1)
+            steps = np.full(self.n, self.period)
+        else:
+            valid = (k0[:, None] + np.arange(self.period)[None, :]) < self.n_epochs
+            last = np.maximum(valid.sum(axis=1) - 1, 0)
+            steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has none
         gyro, ads_q, ads_rate = (
-            self._window(a, k0) for a in (self.gyro, self.ads_q, self.ads_rate)
+            self._window(a, where) for a in (self.gyro, self.ads_q, self.ads_rate)
         )
-        meas = self._window(self.has_meas, k0) & valid
+        meas = self._window(self.has_meas, where) & valid
         if self.nominal is not None:
             self.nominal.copy_state_from(self.kf)
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
-        last = np.maximum(valid.sum(axis=1) - 1, 0)
         rows = np.arange(self.n)
+        at = np.minimum(k0 + last, self.n_epochs - 1)  # the period's last valid epoch
         if self.reward.uses_truth:  # the errors over the whole period
             truth = (
-                self._window(self.q_true, k0),
-                self._window(self.bias, k0),
-                self._window(self.calib, k0),
+                self._window(self.q_true, where),
+                self._window(self.bias, where),
+                self._window(self.calib, where),
             )
             err = state_errors(rec.est, *truth)
             err_last = err[rows, last]
         else:  # only info's errors at the period's last epoch; the reward does not see them
-            at = np.minimum(k0 + last, self.n_epochs - 1)
             err_last = state_errors(
                 rec.est[rows, last][:, None],
                 self.q_true[rows, at][:, None],
@@ -220,9 +248,8 @@ class BatchedEpisodes:
             err = np.full((self.n, self.period, 15), np.nan)
         ref_err = None
         if self.reference_errors is not None:
-            ref_err = self._window(self.reference_errors, k0)
+            ref_err = self._window(self.reference_errors, where)
         diverged = self.kf.diverged.copy()
-        steps = np.maximum(valid.sum(axis=1), 1)  # an episode already over has no valid epoch
         dll = None
         if self.nominal is not None:
             rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
@@ -230,17 +257,21 @@ class BatchedEpisodes:
             ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)
             with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
                 dll = ll - ll_nom
-        epoch = np.minimum(k0[:, None] + np.arange(self.period), self.n_epochs - 1)
+        if isinstance(where, slice):  # the bound and window of the epochs, per episode
+            bound = np.broadcast_to(self.bound[where], (self.n, self.period, 15))
+            settled = np.broadcast_to(self.settled[where], (self.n, self.period))
+        else:
+            bound, settled = self.bound[where], self.settled[where] & valid
         outcome = PeriodOutcome(
             record=rec,
             loglik_gain=dll,
             errors=err,
-            bound=self.bound[epoch],
+            bound=bound,
             valid=valid,
             steps=steps,
             dt=self.cfg.scenario.dt_s,
             reference_errors=ref_err,
-            settled=self.settled[epoch] & valid,
+            settled=settled,
             settled_epochs=max(int(self.settled.sum()), 1),
             weights=self.weights,
             reference_ms=self.reference_ms,
@@ -270,7 +301,7 @@ class BatchedEpisodes:
             kappa=np.asarray(kappa, dtype=float),
             errors=err_last / DISPLAY_UNIT,
             crlb=outcome.bound[rows, last] / DISPLAY_UNIT,
-            t_s=self.t[np.minimum(k0 + last, self.n_epochs - 1)],
+            t_s=self.t[at],
             est=rec.est,
             valid=valid,
         )
@@ -324,7 +355,14 @@ class EpisodeDriver:
 
     def reset_env(self, i: int) -> np.ndarray:
         """Start episode ``i`` anew from its generator; its first observation."""
-        return self.core.reset(i, int(self.rngs[i].integers(2**63 - 1)))
+        return self.reset_envs(np.array([i]))[0]
+
+    def reset_envs(self, rows: np.ndarray) -> np.ndarray:
+        """Start episodes ``rows`` anew, each from its own generator (drawn in the order of
+        ``rows``); their first observations (len(rows), size)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        seeds = [int(self.rngs[i].integers(2**63 - 1)) for i in rows]
+        return self.core.reset_many(rows, seeds)
 
     def step(self, actions: Any) -> StepOutput:
         """Map one action per episode to κ and run one decision period in all of them."""

@@ -43,11 +43,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 
 from envs.common.bounds import OBS_LIMIT, finite_clipped
+from envs.transfer_alignment.period_summary import Summary, block_table, period_summary
 from qkf.core.registry import Registry
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import Config
@@ -91,6 +93,23 @@ class PeriodView:
     n_meas: int  # measurement rows per epoch (6 with rate matching, else 3)
     dt: float  # s
 
+    @cached_property
+    def summary(self) -> Summary:
+        """The period's NIS means, covariance levels of :data:`LEVEL_BLOCKS` and rate, in one
+        compiled pass (:mod:`envs.transfer_alignment.period_summary`); computed once per view."""
+        rec = self.record
+        return period_summary(
+            rec.nis_att, rec.nis_rate, rec.nis, rec.var, rec.rate, self.valid, self.last,
+            self.p0_sigma, _LEVEL_TABLE,
+        )  # fmt: skip
+
+    def nis_means(self, empty_att: float, empty_rate: float, empty_all: float) -> np.ndarray:
+        """:func:`masked_mean` of the NIS att., NIS rate and NIS columns (N, 3), ``empty_*``
+        where a row has no finite valid epoch."""
+        sm = self.summary
+        empty = np.array([empty_att, empty_rate, empty_all])
+        return np.where(sm.nis_count > 0, sm.nis_mean, empty)
+
 
 class ObservationState(Protocol):
     """The stateful observation of a batch of N episodes."""
@@ -128,6 +147,10 @@ def masked_mean(x: np.ndarray, valid: np.ndarray, empty: float = 0.0) -> np.ndar
 
 THREE_BLOCKS = (slice(0, 3), slice(3, 6), slice(6, 15))
 """v0–v2: the attitude, bias and calibration blocks of the state."""
+LEVEL_BLOCKS = (*THREE_BLOCKS, *GROUPS.values())
+"""The blocks whose covariance levels :attr:`PeriodView.summary` computes: v0–v2's three,
+then v3's four groups (attitude, bias, scale factor, misalignment)."""
+_LEVEL_TABLE = block_table(LEVEL_BLOCKS)
 
 
 def sigma_ratios(view: PeriodView, blocks: tuple[slice, ...] = THREE_BLOCKS) -> np.ndarray:
@@ -159,19 +182,15 @@ class ObservationV0:
         return obs
 
     def __call__(self, view: PeriodView) -> np.ndarray:
-        rec = view.record
         assert view.loglik_gain is not None
-        obs = np.column_stack(
-            [
-                sigma_ratios(view),
-                masked_mean(rec.nis_att, view.valid) / 3.0,
-                masked_mean(rec.nis_rate, view.valid) / 3.0,
-                view.loglik_gain / (view.steps * view.n_meas),
-                view.elapsed,
-                np.linalg.norm(rate_deg_s(view), axis=1),
-                view.kappa_pos,
-            ]
-        )
+        sm = view.summary
+        obs = np.empty((view.last.size, self.size))
+        obs[:, 0:3] = sm.levels[:, 0:3]  # sigma_ratios(view)
+        obs[:, 3:5] = view.nis_means(0.0, 0.0, 0.0)[:, 0:2] / 3.0
+        obs[:, 5] = view.loglik_gain / (view.steps * view.n_meas)
+        obs[:, 6] = view.elapsed
+        obs[:, 7] = sm.rate_norm
+        obs[:, 8] = view.kappa_pos
         return finite_clipped(obs)
 
 
@@ -203,14 +222,16 @@ class ObservationV1:
         self.clock = change_clock(cfg, n)
         self.alarm = np.zeros(n, dtype=bool)  # the last period's alarms (x > nis_alarm)
         self.cusum = np.zeros(n)
-        self.window = np.ones((n, NIS_WINDOW))  # past periods' mean NIS per row, newest last
+        # past periods' mean NIS per row, newest last: attitude, rate (v3) and all rows
+        self.windows = np.ones((n, 3, NIS_WINDOW))
+        self.window_logs = np.zeros((n, 3))  # log10 of their means (floor −2)
         self.since_alarm = np.zeros(n)  # s
         self.since_rate_change = np.zeros(n)  # s
         self.last_rate = np.full((n, 3), np.nan)  # deg/s; NaN: no period seen yet
 
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
         self.cusum[rows] = 0.0
-        self.window[rows] = 1.0
+        self.windows[rows] = 1.0
         self.since_alarm[rows] = 0.0
         self.since_rate_change[rows] = 0.0
         self.last_rate[rows] = np.nan
@@ -219,36 +240,38 @@ class ObservationV1:
         return obs
 
     def __call__(self, view: PeriodView) -> np.ndarray:
-        rec = view.record
+        return finite_clipped(self._values(view))
+
+    def _values(self, view: PeriodView) -> np.ndarray:
+        """The entries of the table (N, size), float64, before clipping."""
+        sm = view.summary
         period = view.steps * view.dt  # s of filtering in this period
-        x_att = masked_mean(rec.nis_att, view.valid, empty=3.0) / 3.0
-        x_rate = masked_mean(rec.nis_rate, view.valid, empty=3.0) / 3.0
-        x_all = masked_mean(rec.nis, view.valid, empty=float(view.n_meas)) / view.n_meas
-        x_all = np.where(np.isfinite(x_all), x_all, OBS_LIMIT)
+        # the period's mean NIS per row: attitude, rate, all rows
+        x = view.nis_means(3.0, 3.0, float(view.n_meas)) / np.array([3.0, 3.0, view.n_meas])
+        x_all = np.where(np.isfinite(x[:, 2]), x[:, 2], OBS_LIMIT)
+        x[:, 2] = x_all
         self.cusum = np.maximum(0.0, self.cusum + x_all - 1.0 - CUSUM_DRIFT)
-        self.window = np.concatenate([self.window[:, 1:], x_all[:, None]], axis=1)
+        self.windows[:, :, :-1] = self.windows[:, :, 1:]  # drop the oldest period
+        self.windows[:, :, -1] = x
+        self.window_logs = np.log10(np.maximum(self.windows.mean(axis=2), LOG_FLOOR))
         alarm = self.clock.alarms(x_all)
         self.alarm = alarm  # this period's alarms, for v2's change clock
         self.since_alarm = np.where(alarm, 0.0, self.since_alarm + period)
-        rate = rate_deg_s(view)
+        rate = sm.rate_deg_s
         changed = np.linalg.norm(rate - self.last_rate, axis=1) > RATE_CHANGE_DEG_S
         self.since_rate_change = np.where(changed, 0.0, self.since_rate_change + period)
         self.last_rate = rate
-        obs = np.column_stack(
-            [
-                sigma_ratios(view),
-                np.log10(np.maximum(x_att, LOG_FLOOR)),
-                np.log10(np.maximum(x_rate, LOG_FLOOR)),
-                np.log10(np.maximum(self.window.mean(axis=1), LOG_FLOOR)),
-                np.log10(1.0 + self.cusum),
-                np.log10(1.0 + self.since_alarm / TIME_SCALE_S),
-                np.linalg.norm(rate, axis=1),
-                np.log10(1.0 + self.since_rate_change / TIME_SCALE_S),
-                view.elapsed,
-                view.kappa_pos,
-            ]
-        )
-        return finite_clipped(obs)
+        obs = np.empty((rate.shape[0], ObservationV1.size))
+        obs[:, 0:3] = sm.levels[:, 0:3]  # sigma_ratios(view)
+        obs[:, 3:5] = np.log10(np.maximum(x[:, 0:2], LOG_FLOOR))
+        obs[:, 5] = self.window_logs[:, 2]
+        clocks = np.column_stack([self.cusum, self.since_alarm / TIME_SCALE_S])
+        obs[:, 6:8] = np.log10(1.0 + clocks)
+        obs[:, 8] = sm.rate_norm
+        obs[:, 9] = np.log10(1.0 + self.since_rate_change / TIME_SCALE_S)
+        obs[:, 10] = view.elapsed
+        obs[:, 11] = view.kappa_pos
+        return obs
 
 
 class ObservationV2(ObservationV1):
@@ -271,11 +294,10 @@ class ObservationV2(ObservationV1):
     def _shown(age_s: np.ndarray | float) -> np.ndarray:
         return np.log10(1.0 + np.minimum(age_s, ONSET_CAP_S) / TIME_SCALE_S)
 
-    def __call__(self, view: PeriodView) -> np.ndarray:
-        obs = super().__call__(view)
-        period = view.steps * view.dt
-        age = self.clock.update(self.alarm, period)
-        return finite_clipped(np.column_stack([obs, self._shown(age)]))
+    def _values(self, view: PeriodView) -> np.ndarray:
+        v1 = super()._values(view)
+        age = self.clock.update(self.alarm, view.steps * view.dt)
+        return np.column_stack([v1, self._shown(age)])
 
 
 class ObservationV3(ObservationV2):
@@ -307,15 +329,8 @@ class ObservationV3(ObservationV2):
     size = 15
     _V2_KEPT = (3, 4, 5, 6, 7, 8, 9, 11, 12)  # v2's entries after the σ blocks, minus time
 
-    def __init__(self, cfg: Config, n: int, period_s: float) -> None:
-        super().__init__(cfg, n, period_s)
-        self.window_att = np.ones((n, NIS_WINDOW))
-        self.window_rate = np.ones((n, NIS_WINDOW))
-
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
         v2 = super().reset(rows, kappa_pos)
-        self.window_att[rows] = 1.0
-        self.window_rate[rows] = 1.0
         zeros = np.zeros((rows.size, 4))
         return self._assemble(zeros, v2, zeros[:, :2]).astype(np.float32)
 
@@ -324,21 +339,12 @@ class ObservationV3(ObservationV2):
         # order of the table: σ levels, period NIS (2), windowed NIS per block (2), the rest
         return np.column_stack([sigmas, kept[:, :2], windows, kept[:, 2:]])
 
-    def __call__(self, view: PeriodView) -> np.ndarray:
-        v2 = super().__call__(view)
-        rec = view.record
-        x_att = masked_mean(rec.nis_att, view.valid, empty=3.0) / 3.0
-        x_rate = masked_mean(rec.nis_rate, view.valid, empty=3.0) / 3.0
-        self.window_att = np.concatenate([self.window_att[:, 1:], x_att[:, None]], axis=1)
-        self.window_rate = np.concatenate([self.window_rate[:, 1:], x_rate[:, None]], axis=1)
-        windows = np.log10(
-            np.maximum(
-                np.column_stack([self.window_att.mean(axis=1), self.window_rate.mean(axis=1)]),
-                LOG_FLOOR,
-            )
-        )
-        levels = sigma_ratios(view, tuple(GROUPS.values()))
-        return finite_clipped(self._assemble(levels, v2, windows))
+    def _values(self, view: PeriodView) -> np.ndarray:
+        # v2's entries are clipped and rounded to float32 once, with the rest (the same float32
+        # values as clipping them twice, as an earlier version did)
+        v2 = super()._values(view)
+        levels = view.summary.levels[:, 3:7]  # sigma_ratios(view, GROUPS)
+        return self._assemble(levels, v2, self.window_logs[:, 0:2])
 
 
 class ObservationV3Timed(ObservationV3):
@@ -351,8 +357,8 @@ class ObservationV3Timed(ObservationV3):
         first = super().reset(rows, kappa_pos)
         return np.column_stack([first, np.zeros(rows.size)]).astype(np.float32)
 
-    def __call__(self, view: PeriodView) -> np.ndarray:
-        return finite_clipped(np.column_stack([super().__call__(view), view.elapsed]))
+    def _values(self, view: PeriodView) -> np.ndarray:
+        return np.column_stack([super()._values(view), view.elapsed])
 
 
 OBSERVATIONS.register(

@@ -51,7 +51,7 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
             if s is not None:
                 self._driver.rngs[i] = seeding.np_random(s)[0]
         self._reset_seeds()
-        return np.stack([self._driver.reset_env(i) for i in range(self.num_envs)])
+        return self._driver.reset_envs(np.arange(self.num_envs))
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -70,8 +70,10 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
                 info["terminal_observation"] = out.obs[i]
                 info["TimeLimit.truncated"] = bool(out.truncated[i])
                 info["diverged"] = bool(out.terminated[i])
-                obs[i] = self._driver.reset_env(i)
             infos.append(info)
+        ended = np.flatnonzero(dones)
+        if ended.size:  # the episodes that ended start over, together
+            obs[ended] = self._driver.reset_envs(ended)
         return obs, out.reward.astype(np.float32), dones, infos
 
     def close(self) -> None:

@@ -86,7 +86,7 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         for i, s in enumerate(seeds):
             if s is not None or self._needs_reset[i]:
                 self._driver.rngs[i] = seeding.np_random(s)[0]
-        obs = np.stack([self._driver.reset_env(i) for i in range(self.num_envs)])
+        obs = self._driver.reset_envs(np.arange(self.num_envs))
         self._needs_reset[:] = False
         for trace in self._traces:
             trace.clear()
@@ -102,10 +102,11 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         obs, reward = out.obs, out.reward
         term, trunc = out.terminated.copy(), out.truncated.copy()
         # next-step autoreset: episodes that ended on the previous step start over now
-        for i in np.flatnonzero(self._needs_reset):
-            obs[i] = self._driver.reset_env(int(i))
-            reward[i] = 0.0
-            term[i] = trunc[i] = False
+        restart = np.flatnonzero(self._needs_reset)
+        if restart.size:
+            obs[restart] = self._driver.reset_envs(restart)
+            reward[restart] = 0.0
+            term[restart] = trunc[restart] = False
         if self.render_mode is not None:  # record only what render() will draw
             curves = calibration_curves(self._driver, out)
             for row, trace in enumerate(self._traces):

@@ -84,6 +84,9 @@ class FilterRecord:
         return np.where(np.isfinite(self.est).all(axis=-1), ll, -np.inf)
 
 
+_NO_RECORD = np.empty(0)  # placeholder of the NIS fields until the kernel's stats are split
+
+
 class TransferAlignmentKF:
     """The 15-state transfer-alignment filter for ``n_trials`` independent trials at once.
 
@@ -153,6 +156,27 @@ class TransferAlignmentKF:
             raise ValueError("filters of different batch sizes")
         self.load_trial(slice(None), other, slice(None))
 
+    def _kernel_constants(self) -> _ta_kernel.Constants:
+        """The kernel's constants of :attr:`params`, built once per parameter set."""
+        p = self.params
+        cached = self.__dict__.get("_constants")
+        if cached is not None and cached[0] is p:
+            return cached[1]
+        constants = _ta_kernel.Constants(
+            dt=float(p.dt),
+            sigma_v=float(p.sigma_v),
+            sigma_u=float(p.sigma_u),
+            qp0=float(p.qp0),
+            sigma_r=float(p.sigma_r),
+            use_rate=bool(p.use_rate),
+            correlated=bool(p.rate_noise_correlation),
+            d=self._d,
+            gl_s=self._gl_s,
+            gl_w=self._gl_w,
+        )
+        self._constants = (p, constants)
+        return constants
+
     def step(
         self,
         gyro: np.ndarray,
@@ -173,7 +197,9 @@ class TransferAlignmentKF:
         n = gyro.shape[1]
         ads_q = _block(ads_q, b, 4, "ads_q", n)
         ads_rate = _block(ads_rate, b, 3, "ads_rate", n)
-        has_meas = np.ascontiguousarray(np.broadcast_to(np.asarray(has_meas, dtype=bool), (b, n)))
+        has_meas = np.asarray(has_meas, dtype=bool)
+        if has_meas.shape != (b, n) or not has_meas.flags.c_contiguous:
+            has_meas = np.ascontiguousarray(np.broadcast_to(has_meas, (b, n)))
         kap = expand_kappa(kappa, b, n)
         rec = FilterRecord(
             est=np.empty((b, n, 16)),
@@ -181,46 +207,32 @@ class TransferAlignmentKF:
             cov=np.empty((b, n, 15, 15)) if record_cov else None,
             dx=np.empty((b, n, 15)),
             innov=np.empty((b, n, 6)),
-            nis_att=np.empty(0),
-            nis_rate=np.empty(0),
-            nis=np.empty(0),
-            logdet_s=np.empty(0),
-            trace_s_att=np.empty(0),
+            nis_att=_NO_RECORD,
+            nis_rate=_NO_RECORD,
+            nis=_NO_RECORD,
+            logdet_s=_NO_RECORD,
+            trace_s_att=_NO_RECORD,
             rate=np.empty((b, n, 3)),
         )
         stats = np.empty((b, n, 5))
-        p = self.params
+        # A single environment's step calls this twice per decision period of ten epochs, so
+        # the wrapper is kept to a few microseconds: the constants are built once per
+        # parameter set, the tuples positionally (docs/performance.md).
         run = _ta_kernel.run_block if b >= _ta_kernel.SERIAL_BELOW else _ta_kernel.run_block_serial
         run(
             _ta_kernel.FilterState(self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged),
             _ta_kernel.Inputs(
-                gyro=gyro,
-                ads_q=ads_q,
-                ads_rate=ads_rate,
-                has_meas=has_meas,
-                kappa=kap,
-                sigma_a=np.ascontiguousarray(self.sigma_a, dtype=float),
+                gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float)
             ),
-            _ta_kernel.Constants(
-                dt=float(p.dt),
-                sigma_v=float(p.sigma_v),
-                sigma_u=float(p.sigma_u),
-                qp0=float(p.qp0),
-                sigma_r=float(p.sigma_r),
-                use_rate=bool(p.use_rate),
-                correlated=bool(p.rate_noise_correlation),
-                d=self._d,
-                gl_s=self._gl_s,
-                gl_w=self._gl_w,
-            ),
+            self._kernel_constants(),
             _ta_kernel.Records(
-                est=rec.est,
-                var=rec.var,
-                cov=rec.cov if rec.cov is not None else np.empty((b, 0, 15, 15)),
-                dx=rec.dx,
-                innov=rec.innov,
-                stats=stats,
-                rate=rec.rate,
+                rec.est,
+                rec.var,
+                rec.cov if rec.cov is not None else np.empty((b, 0, 15, 15)),
+                rec.dx,
+                rec.innov,
+                stats,
+                rec.rate,
             ),
         )
         rec.nis_att, rec.nis_rate, rec.nis, rec.logdet_s, rec.trace_s_att = (
@@ -254,6 +266,10 @@ def expand_kappa(kappa: float | np.ndarray, n_trials: int, n_epochs: int) -> np.
     Accepts a scalar, (B,), (B, n) or (B, n, 9). Raises ``ValueError`` for anything else and for
     non-finite or non-positive values.
     """
+    if isinstance(kappa, float | int):  # a scalar: checked before it is spread
+        if not (np.isfinite(kappa) and kappa > 0.0):
+            raise ValueError("kappa must be finite and positive")
+        return np.full((n_trials, n_epochs, 9), float(kappa))
     kap = np.asarray(kappa, dtype=float)
     if kap.ndim == 1:
         kap = kap[:, None, None]
@@ -265,7 +281,8 @@ def expand_kappa(kappa: float | np.ndarray, n_trials: int, n_epochs: int) -> np.
         raise ValueError(
             f"kappa of shape {np.shape(kappa)} does not fit (B={n_trials}, n={n_epochs}[, 9])"
         ) from None
-    if not np.all(np.isfinite(out)) or np.any(out <= 0.0):
+    # the given factors are checked, not their broadcast copy (the same values, fewer of them)
+    if not (np.isfinite(kap).all() and (kap > 0.0).all()):
         raise ValueError("kappa must be finite and positive")
     return out
 

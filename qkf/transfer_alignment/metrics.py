@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.core.so3 import quat_conj, quat_log, quat_mul
+from qkf.core.quat import relative_rotvecs
 from qkf.transfer_alignment.states import GROUPS, N_STATES
 
 
@@ -22,19 +22,13 @@ def state_errors(
     ``calib`` (B, n, 9).
     """
     b, n = est.shape[:2]
-    q_hat = est[..., 0:4].reshape(-1, 4)
-    q_t = np.broadcast_to(q_true, (b, n, 4)).reshape(-1, 4)
+    q_hat = np.ascontiguousarray(est[..., 0:4]).reshape(-1, 4)
+    q_t = np.ascontiguousarray(np.broadcast_to(q_true, (b, n, 4))).reshape(-1, 4)
     err = np.empty((b, n, N_STATES))
-    # NaN where either side is not finite: a diverged estimate, or no truth (recorded data)
-    finite = np.all(np.isfinite(q_hat), axis=1) & np.all(np.isfinite(q_t), axis=1)
-    att = np.full((b * n, 3), np.nan)
-    if finite.any():
-        # δθ = Log(Ĉᵀ C) = Log(q̂* ⊗ q) of the normalised quaternions (so3 in numpy: scipy's
-        # Rotation objects cost ~50 µs each to build, per call of a single environment's step)
-        qh, qt = q_hat[finite], q_t[finite]
-        qh = qh / np.linalg.norm(qh, axis=-1, keepdims=True)
-        qt = qt / np.linalg.norm(qt, axis=-1, keepdims=True)
-        att[finite] = quat_log(quat_mul(quat_conj(qh), qt))
+    # δθ = Log(Ĉᵀ C) = Log(q̂* ⊗ q) of the normalised quaternions, compiled; NaN where either
+    # side is not finite: a diverged estimate, or no truth (recorded data)
+    att = np.empty((b * n, 3))
+    relative_rotvecs(q_hat, q_t, att)
     err[..., 0:3] = att.reshape(b, n, 3)
     err[..., 3:6] = bias - est[..., 4:7]
     err[..., 6:15] = calib - est[..., 7:16]

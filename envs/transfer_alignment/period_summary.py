@@ -1,0 +1,133 @@
+r"""What every observation reads of a decision period, in one compiled pass (docs/performance.md).
+
+The observations (:mod:`envs.transfer_alignment.observations`) reduce the filter's record of a
+period to a few numbers per episode: masked means of the NIS columns, the covariance levels of
+blocks of states at the period's last valid epoch, and the rate there. Written as numpy
+reductions these are some forty calls on arrays of ten epochs, and for one episode (the single
+environment) their call overhead was the largest part of a step. :func:`period_summary` does
+them in one compiled call; the numpy definitions (:func:`~envs.transfer_alignment.observations.
+masked_mean`, :func:`~envs.transfer_alignment.observations.sigma_ratios`) stay the reference
+the tests hold it to.
+
+Per episode ``i`` of N, over the period's P epochs, with ``ok_k = valid_k ∧ isfinite(x_k)``::
+
+    mean_c   = Σ_k ok_k x_k,c / max(n_c, 1),  n_c = Σ_k ok_k       c = NIS att., rate, all
+    level_j  = mean_{s ∈ block j} ½ log10(P_ss / σ0_s²)            at the last valid epoch
+    rate     = ω̂ / (π/180)                                        deg/s, at the last valid epoch
+
+Sums run in epoch order; numpy's pairwise sums round differently in the last bit, which the
+float32 observations do not see (the tests allow one float32 unit in the last place).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+DEG = np.pi / 180.0
+
+
+class Summary(NamedTuple):
+    """Output of :func:`period_summary` for N episodes."""
+
+    nis_mean: np.ndarray  # (N, 3) masked means of NIS att., NIS rate, NIS (0 where none)
+    nis_count: np.ndarray  # (N, 3) finite valid epochs behind each mean
+    levels: np.ndarray  # (N, K) mean ½ log10(P_ss/σ0_s²) of each block at the last epoch
+    rate_deg_s: np.ndarray  # (N, 3) ω̂ at the last epoch, deg/s
+    rate_norm: np.ndarray  # (N,) |ω̂| there, deg/s
+
+
+@nb.njit(cache=True)
+def _masked_mean(x: np.ndarray, valid: np.ndarray) -> tuple[float, int]:
+    """``Σ ok x / max(n, 1)`` and ``n`` over the finite, valid entries of one row."""
+    total = 0.0
+    count = 0
+    for k in range(x.shape[0]):
+        if valid[k] and np.isfinite(x[k]):
+            total += x[k]
+            count += 1
+    return total / max(count, 1), count
+
+
+@nb.njit(cache=True)
+def _summarise(
+    nis_att: np.ndarray,
+    nis_rate: np.ndarray,
+    nis: np.ndarray,
+    var: np.ndarray,
+    rate: np.ndarray,
+    valid: np.ndarray,
+    last: np.ndarray,
+    p0_var: np.ndarray,
+    blocks: np.ndarray,
+    nis_mean: np.ndarray,
+    nis_count: np.ndarray,
+    levels: np.ndarray,
+    rate_deg: np.ndarray,
+    rate_norm: np.ndarray,
+) -> None:
+    for i in range(valid.shape[0]):
+        nis_mean[i, 0], nis_count[i, 0] = _masked_mean(nis_att[i], valid[i])
+        nis_mean[i, 1], nis_count[i, 1] = _masked_mean(nis_rate[i], valid[i])
+        nis_mean[i, 2], nis_count[i, 2] = _masked_mean(nis[i], valid[i])
+        k = last[i]
+        for j in range(blocks.shape[0]):
+            lo, hi = blocks[j, 0], blocks[j, 1]
+            total = 0.0
+            for s in range(lo, hi):
+                total += 0.5 * np.log10(var[i, k, s] / p0_var[s])  # ½ log10(P_ss / σ0_s²)
+            levels[i, j] = total / (hi - lo)
+        sq = 0.0
+        for a in range(3):
+            r = rate[i, k, a] / DEG  # rad/s → deg/s
+            rate_deg[i, a] = r
+            sq += r * r
+        rate_norm[i] = np.sqrt(sq)
+
+
+def period_summary(
+    nis_att: np.ndarray,
+    nis_rate: np.ndarray,
+    nis: np.ndarray,
+    var: np.ndarray,
+    rate: np.ndarray,
+    valid: np.ndarray,
+    last: np.ndarray,
+    p0_sigma: np.ndarray,
+    blocks: np.ndarray,
+) -> Summary:
+    """The module's reductions for N episodes of a period of P epochs.
+
+    ``nis_att``, ``nis_rate``, ``nis`` (N, P): the filter's NIS records (NaN where none);
+    ``var`` (N, P, 15) diag P in SI; ``rate`` (N, P, 3) ω̂ in rad/s; ``valid`` (N, P) bool;
+    ``last`` (N,) the last valid epoch; ``p0_sigma`` (15,) prior sigmas (SI); ``blocks``
+    (K, 2) int, ``[start, stop)`` of each block of states.
+    """
+    n = valid.shape[0]
+    out = Summary(
+        nis_mean=np.empty((n, 3)),
+        nis_count=np.empty((n, 3), dtype=np.int64),
+        levels=np.empty((n, blocks.shape[0])),
+        rate_deg_s=np.empty((n, 3)),
+        rate_norm=np.empty(n),
+    )
+    _summarise(
+        nis_att,
+        nis_rate,
+        nis,
+        var,
+        rate,
+        np.ascontiguousarray(valid, dtype=np.bool_),
+        np.ascontiguousarray(last, dtype=np.int64),
+        np.asarray(p0_sigma, dtype=float) ** 2,
+        blocks,
+        *out,
+    )
+    return out
+
+
+def block_table(blocks: tuple[slice, ...]) -> np.ndarray:
+    """``[start, stop)`` of each slice of states, a (K, 2) int array (:func:`period_summary`)."""
+    return np.array([[sl.start, sl.stop] for sl in blocks], dtype=np.int64)
