@@ -98,3 +98,68 @@ def test_blocks_are_independent_of_their_order() -> None:
     fwd = period_summary(*args, view.p0_sigma, table).levels
     rev = period_summary(*args, view.p0_sigma, table[::-1].copy()).levels
     np.testing.assert_array_equal(fwd, rev[:, ::-1])
+
+
+def test_evidence_update_equals_a_numpy_transcription() -> None:
+    """``update_evidence`` over 40 periods of 6 episodes against the equations of its docstring
+    written out in numpy: the alarms exactly, the logs and the state to rounding."""
+    from envs.common.bounds import OBS_LIMIT
+    from envs.transfer_alignment.observations import (
+        CUSUM_DRIFT,
+        LOG_FLOOR,
+        NIS_WINDOW,
+        RATE_CHANGE_DEG_S,
+        TIME_SCALE_S,
+    )
+    from envs.transfer_alignment.period_summary import EvidenceConstants, Summary, update_evidence
+
+    rng = np.random.default_rng(8)
+    n, n_meas, nis_alarm = 6, 6, 4.0
+    c = EvidenceConstants(
+        CUSUM_DRIFT, nis_alarm, RATE_CHANGE_DEG_S, TIME_SCALE_S, LOG_FLOOR, OBS_LIMIT
+    )
+    state = (
+        np.zeros(n),
+        np.ones((n, 3, NIS_WINDOW)),
+        np.zeros(n),
+        np.zeros(n),
+        np.full((n, 3), np.nan),
+    )
+    ref = [a.copy() for a in state]
+    rate = rng.normal(scale=0.3, size=(n, 3))
+    seen = np.zeros(2, dtype=int)  # periods with and without an alarm
+    for _ in range(40):
+        means = rng.chisquare(3, size=(n, 3)) * rng.choice([0.3, 1.0, 5.0], size=(n, 1))
+        counts = rng.integers(0, 3, size=(n, 3))  # 0: no measurement in the period
+        means[0, 2] = np.inf  # a non-finite mean per row is shown as OBS_LIMIT
+        rate = np.where(rng.random((n, 1)) < 0.3, rng.normal(scale=0.3, size=(n, 3)), rate)
+        period = rng.choice([10.0, 4.0], size=n)
+        sm = Summary(means, counts, np.zeros((n, 0)), rate.copy(), np.linalg.norm(rate, axis=1))
+        alarm, logs = update_evidence(sm, n_meas, period, c, *state)
+        # the reference, straight from the equations
+        cusum, windows, t_alarm, t_rate, last = ref
+        empty = np.array([3.0, 3.0, n_meas])
+        x = np.where(counts > 0, means, empty) / empty
+        x[:, 2] = np.where(np.isfinite(x[:, 2]), x[:, 2], OBS_LIMIT)
+        cusum[:] = np.maximum(0.0, cusum + x[:, 2] - 1.0 - CUSUM_DRIFT)
+        windows[:] = np.concatenate([windows[:, :, 1:], x[:, :, None]], axis=2)
+        ref_alarm = x[:, 2] > nis_alarm
+        t_alarm[:] = np.where(ref_alarm, 0.0, t_alarm + period)
+        moved = np.linalg.norm(rate - last, axis=1) > RATE_CHANGE_DEG_S
+        t_rate[:] = np.where(moved, 0.0, t_rate + period)
+        last[:] = rate
+        expect = np.column_stack(
+            [
+                np.log10(np.maximum(x[:, 0:2], LOG_FLOOR)),
+                np.log10(np.maximum(windows.mean(axis=2), LOG_FLOOR)),
+                np.log10(1.0 + cusum),
+                np.log10(1.0 + t_alarm / TIME_SCALE_S),
+                np.log10(1.0 + t_rate / TIME_SCALE_S),
+            ]
+        )
+        np.testing.assert_array_equal(alarm, ref_alarm)
+        seen += [ref_alarm.sum(), (~ref_alarm).sum()]
+        np.testing.assert_allclose(logs, expect, rtol=1e-13, atol=1e-15)
+        for got, want in zip(state, ref, strict=True):
+            np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-15)
+    assert seen.min() > 20  # alarms and quiet periods both exercised

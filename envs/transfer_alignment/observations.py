@@ -49,7 +49,13 @@ from typing import Protocol
 import numpy as np
 
 from envs.common.bounds import OBS_LIMIT, finite_clipped
-from envs.transfer_alignment.period_summary import Summary, block_table, period_summary
+from envs.transfer_alignment.period_summary import (
+    EvidenceConstants,
+    Summary,
+    block_table,
+    period_summary,
+    update_evidence,
+)
 from qkf.core.registry import Registry
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import Config
@@ -228,6 +234,14 @@ class ObservationV1:
         self.since_alarm = np.zeros(n)  # s
         self.since_rate_change = np.zeros(n)  # s
         self.last_rate = np.full((n, 3), np.nan)  # deg/s; NaN: no period seen yet
+        self.constants = EvidenceConstants(
+            cusum_drift=CUSUM_DRIFT,
+            nis_alarm=float(self.clock.nis_alarm),
+            rate_change_deg_s=RATE_CHANGE_DEG_S,
+            time_scale_s=TIME_SCALE_S,
+            log_floor=LOG_FLOOR,
+            obs_limit=OBS_LIMIT,
+        )
 
     def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
         self.cusum[rows] = 0.0
@@ -242,33 +256,28 @@ class ObservationV1:
     def __call__(self, view: PeriodView) -> np.ndarray:
         return finite_clipped(self._values(view))
 
+    def _evidence(self, view: PeriodView) -> tuple[Summary, np.ndarray]:
+        """The period's summary, and the change-detection state advanced by one period (its
+        :data:`~envs.transfer_alignment.period_summary.EVIDENCE_COLUMNS`), compiled: one call
+        instead of some thirty numpy ones (docs/performance.md)."""
+        sm = view.summary
+        self.alarm, logs = update_evidence(
+            sm, view.n_meas, view.steps * view.dt, self.constants, self.cusum, self.windows,
+            self.since_alarm, self.since_rate_change, self.last_rate,
+        )  # fmt: skip
+        self.window_logs = logs[:, 2:5]
+        return sm, logs
+
     def _values(self, view: PeriodView) -> np.ndarray:
         """The entries of the table (N, size), float64, before clipping."""
-        sm = view.summary
-        period = view.steps * view.dt  # s of filtering in this period
-        # the period's mean NIS per row: attitude, rate, all rows
-        x = view.nis_means(3.0, 3.0, float(view.n_meas)) / np.array([3.0, 3.0, view.n_meas])
-        x_all = np.where(np.isfinite(x[:, 2]), x[:, 2], OBS_LIMIT)
-        x[:, 2] = x_all
-        self.cusum = np.maximum(0.0, self.cusum + x_all - 1.0 - CUSUM_DRIFT)
-        self.windows[:, :, :-1] = self.windows[:, :, 1:]  # drop the oldest period
-        self.windows[:, :, -1] = x
-        self.window_logs = np.log10(np.maximum(self.windows.mean(axis=2), LOG_FLOOR))
-        alarm = self.clock.alarms(x_all)
-        self.alarm = alarm  # this period's alarms, for v2's change clock
-        self.since_alarm = np.where(alarm, 0.0, self.since_alarm + period)
-        rate = sm.rate_deg_s
-        changed = np.linalg.norm(rate - self.last_rate, axis=1) > RATE_CHANGE_DEG_S
-        self.since_rate_change = np.where(changed, 0.0, self.since_rate_change + period)
-        self.last_rate = rate
-        obs = np.empty((rate.shape[0], ObservationV1.size))
+        sm, logs = self._evidence(view)
+        obs = np.empty((logs.shape[0], ObservationV1.size))
         obs[:, 0:3] = sm.levels[:, 0:3]  # sigma_ratios(view)
-        obs[:, 3:5] = np.log10(np.maximum(x[:, 0:2], LOG_FLOOR))
-        obs[:, 5] = self.window_logs[:, 2]
-        clocks = np.column_stack([self.cusum, self.since_alarm / TIME_SCALE_S])
-        obs[:, 6:8] = np.log10(1.0 + clocks)
+        obs[:, 3:5] = logs[:, 0:2]  # log10 of the period's NIS per row, attitude and rate
+        obs[:, 5] = logs[:, 4]  # the windowed NIS per row of all rows
+        obs[:, 6:8] = logs[:, 5:7]  # CUSUM, time since the last alarm
         obs[:, 8] = sm.rate_norm
-        obs[:, 9] = np.log10(1.0 + self.since_rate_change / TIME_SCALE_S)
+        obs[:, 9] = logs[:, 7]  # time since the rate changed
         obs[:, 10] = view.elapsed
         obs[:, 11] = view.kappa_pos
         return obs
@@ -294,10 +303,14 @@ class ObservationV2(ObservationV1):
     def _shown(age_s: np.ndarray | float) -> np.ndarray:
         return np.log10(1.0 + np.minimum(age_s, ONSET_CAP_S) / TIME_SCALE_S)
 
+    def _age_shown(self, view: PeriodView) -> np.ndarray:
+        """Entry 12 after advancing the change clock by the period (with this period's alarms,
+        so after :meth:`_evidence`)."""
+        return self._shown(self.clock.update(self.alarm, view.steps * view.dt))
+
     def _values(self, view: PeriodView) -> np.ndarray:
         v1 = super()._values(view)
-        age = self.clock.update(self.alarm, view.steps * view.dt)
-        return np.column_stack([v1, self._shown(age)])
+        return np.column_stack([v1, self._age_shown(view)])
 
 
 class ObservationV3(ObservationV2):
@@ -340,11 +353,16 @@ class ObservationV3(ObservationV2):
         return np.column_stack([sigmas, kept[:, :2], windows, kept[:, 2:]])
 
     def _values(self, view: PeriodView) -> np.ndarray:
-        # v2's entries are clipped and rounded to float32 once, with the rest (the same float32
-        # values as clipping them twice, as an earlier version did)
-        v2 = super()._values(view)
-        levels = view.summary.levels[:, 3:7]  # sigma_ratios(view, GROUPS)
-        return self._assemble(levels, v2, self.window_logs[:, 0:2])
+        sm, logs = self._evidence(view)
+        obs = np.empty((logs.shape[0], ObservationV3.size))
+        obs[:, 0:4] = sm.levels[:, 3:7]  # sigma_ratios(view, GROUPS)
+        obs[:, 4:9] = logs[:, 0:5]  # period NIS (att., rate), windowed NIS (att., rate, all)
+        obs[:, 9:11] = logs[:, 5:7]  # CUSUM, time since the last alarm
+        obs[:, 11] = sm.rate_norm
+        obs[:, 12] = logs[:, 7]  # time since the rate changed
+        obs[:, 13] = view.kappa_pos
+        obs[:, 14] = self._age_shown(view)
+        return obs
 
 
 class ObservationV3Timed(ObservationV3):

@@ -131,3 +131,128 @@ def period_summary(
 def block_table(blocks: tuple[slice, ...]) -> np.ndarray:
     """``[start, stop)`` of each slice of states, a (K, 2) int array (:func:`period_summary`)."""
     return np.array([[sl.start, sl.stop] for sl in blocks], dtype=np.int64)
+
+
+class EvidenceConstants(NamedTuple):
+    """The settings of :func:`update_evidence` (names as in the observations module)."""
+
+    cusum_drift: float  # CUSUM_DRIFT
+    nis_alarm: float  # alarm threshold on the period's mean NIS per row
+    rate_change_deg_s: float  # RATE_CHANGE_DEG_S
+    time_scale_s: float  # TIME_SCALE_S
+    log_floor: float  # LOG_FLOOR
+    obs_limit: float  # OBS_LIMIT: a non-finite NIS mean per row is taken as this
+
+
+@nb.njit(cache=True)
+def _floored_log10(x: float, floor: float) -> float:
+    """``log10(max(x, floor))`` with numpy's NaN semantics (NaN stays NaN)."""
+    return np.log10(floor if x < floor else x)
+
+
+@nb.njit(cache=True)
+def _update_evidence(
+    nis_mean: np.ndarray,
+    nis_count: np.ndarray,
+    n_meas: int,
+    period_s: np.ndarray,
+    rate_deg: np.ndarray,
+    c: EvidenceConstants,
+    cusum: np.ndarray,
+    windows: np.ndarray,
+    since_alarm: np.ndarray,
+    since_rate_change: np.ndarray,
+    last_rate: np.ndarray,
+    alarm: np.ndarray,
+    logs: np.ndarray,
+) -> None:
+    empty = (3.0, 3.0, float(n_meas))  # what a period without a measurement shows
+    w = windows.shape[2]
+    for i in range(nis_mean.shape[0]):
+        x = np.empty(3)
+        for b in range(3):
+            # the period's mean NIS per row: attitude, rate, all rows
+            x[b] = (nis_mean[i, b] if nis_count[i, b] > 0 else empty[b]) / empty[b]
+        if not np.isfinite(x[2]):
+            x[2] = c.obs_limit
+        cusum[i] = max(0.0, cusum[i] + x[2] - 1.0 - c.cusum_drift)  # S ← max(0, S + x − 1 − k)
+        for b in range(3):
+            total = 0.0
+            for j in range(w - 1):  # drop the oldest period, append this one
+                windows[i, b, j] = windows[i, b, j + 1]
+                total += windows[i, b, j]
+            windows[i, b, w - 1] = x[b]
+            logs[i, 2 + b] = _floored_log10((total + x[b]) / w, c.log_floor)
+        alarm[i] = x[2] > c.nis_alarm
+        since_alarm[i] = 0.0 if alarm[i] else since_alarm[i] + period_s[i]
+        d2 = 0.0
+        for a in range(3):
+            d2 += (rate_deg[i, a] - last_rate[i, a]) ** 2
+            last_rate[i, a] = rate_deg[i, a]
+        changed = np.sqrt(d2) > c.rate_change_deg_s  # False while no period was seen (NaN)
+        since_rate_change[i] = 0.0 if changed else since_rate_change[i] + period_s[i]
+        logs[i, 0] = _floored_log10(x[0], c.log_floor)
+        logs[i, 1] = _floored_log10(x[1], c.log_floor)
+        logs[i, 5] = np.log10(1.0 + cusum[i])
+        logs[i, 6] = np.log10(1.0 + since_alarm[i] / c.time_scale_s)
+        logs[i, 7] = np.log10(1.0 + since_rate_change[i] / c.time_scale_s)
+
+
+EVIDENCE_COLUMNS = (
+    "log NIS att.",
+    "log NIS rate",
+    "log windowed NIS att.",
+    "log windowed NIS rate",
+    "log windowed NIS",
+    "log (1 + CUSUM)",
+    "log (1 + time since alarm / scale)",
+    "log (1 + time since the rate changed / scale)",
+)
+"""The columns of :func:`update_evidence`'s output."""
+
+
+def update_evidence(
+    summary: Summary,
+    n_meas: int,
+    period_s: np.ndarray,
+    constants: EvidenceConstants,
+    cusum: np.ndarray,
+    windows: np.ndarray,
+    since_alarm: np.ndarray,
+    since_rate_change: np.ndarray,
+    last_rate: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Advance the change-detection state of observations v1–v3 by one period, in place, and
+    return ``(alarm, logs)``: this period's alarms (N,) bool and the :data:`EVIDENCE_COLUMNS`
+    (N, 8).
+
+    Per episode, with ``x_b`` the period's mean NIS per row of block b (attitude, rate, all;
+    ``3, 3, n_meas`` where the period had no measurement, then divided by the same)::
+
+        S ← max(0, S + x_all − 1 − drift)                  CUSUM (``cusum``, (N,))
+        window_b ← last W periods' x_b                      (``windows``, (N, 3, W))
+        alarm = x_all > nis_alarm;  t_alarm ← 0 if alarm else t_alarm + period
+        t_rate ← 0 if |ω̂ − ω̂_prev| > rate_change else t_rate + period   (deg/s)
+
+    ``since_alarm``, ``since_rate_change`` (N,) s and ``last_rate`` (N, 3) deg/s are updated
+    too. ``period_s`` (N,): seconds filtered in this period.
+    """
+    n = period_s.shape[0]
+    alarm = np.empty(n, dtype=np.bool_)
+    logs = np.empty((n, len(EVIDENCE_COLUMNS)))
+    _update_evidence(
+        summary.nis_mean,
+        summary.nis_count,
+        n_meas,
+        np.ascontiguousarray(period_s, dtype=float),
+        summary.rate_deg_s,
+        constants,
+        cusum,
+        windows,
+        since_alarm,
+        since_rate_change,
+        last_rate,
+        alarm,
+        logs,
+    )
+    return alarm, logs
