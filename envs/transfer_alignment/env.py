@@ -134,8 +134,8 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        kappa, _ = self.actions(action)
-        out = self._driver.step([action])
+        kappa, position = self.actions(action)
+        out = self._driver.core.step(np.array([kappa]), np.array([position]))
         info = {
             "kappa": kappa,
             "diverged": bool(out.terminated[0]),

@@ -275,8 +275,9 @@ def expand_kappa(kappa: float | np.ndarray, n_trials: int, n_epochs: int) -> np.
         kap = kap[:, None, None]
     elif kap.ndim == 2:
         kap = kap[:, :, None]
+    out = np.empty((n_trials, n_epochs, 9))
     try:
-        out = np.ascontiguousarray(np.broadcast_to(kap, (n_trials, n_epochs, 9)))
+        out[...] = kap  # broadcast into a fresh contiguous array
     except ValueError:
         raise ValueError(
             f"kappa of shape {np.shape(kappa)} does not fit (B={n_trials}, n={n_epochs}[, 9])"
