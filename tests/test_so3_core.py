@@ -235,3 +235,19 @@ def test_relative_rotvecs_batch_matches_numpy_and_scipy() -> None:
     np.testing.assert_allclose(out[inside], phi[inside], rtol=1e-9, atol=1e-12)
     scipy_rel = (Rotation.from_quat(a).inv() * Rotation.from_quat(b)).as_rotvec()
     np.testing.assert_allclose(out[~bad], scipy_rel, rtol=1e-12, atol=1e-15)
+
+
+def test_compose_rotvecs_matches_scipy_composition() -> None:
+    """``quat.compose_rotvecs`` (how the simulator draws ADS attitudes) equals scipy's
+    ``from_quat(q) * from_rotvec(φ)`` for unnormalised q and angles on both sides of the
+    Taylor switch (1e-3 rad) up to π; same sign convention (no flip of the hemisphere)."""
+    rng = np.random.default_rng(9)
+    m = 5000
+    q = Rotation.random(m, random_state=3).as_quat() * rng.uniform(0.8, 1.2, size=(m, 1))
+    phi = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-9, 0.2, size=(m, 1))
+    phi[:4] = [[0.0, 0.0, 0.0], [1e-3, 0.0, 0.0], [0.0, 1.0001e-3, 0.0], [0.0, 0.0, 3.0]]
+    out = np.empty((m, 4))
+    quat.compose_rotvecs(q, phi, out)
+    expect = (Rotation.from_quat(q) * Rotation.from_rotvec(phi)).as_quat()
+    np.testing.assert_allclose(out, expect, rtol=0.0, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-15)

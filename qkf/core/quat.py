@@ -207,6 +207,37 @@ def relative_rotvecs(q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> N
 
 
 @nb.njit(cache=True)
+def compose_rotvecs(q: np.ndarray, phi: np.ndarray, out: np.ndarray) -> None:
+    """Row by row, the quaternion of ``C Exp(φ)`` for quaternions ``q`` (M, 4, any length,
+    normalised first) and rotation vectors ``φ`` (M, 3) in rad, into ``out`` (M, 4).
+
+    The operations and their order are those of scipy's
+    ``(Rotation.from_quat(q) * Rotation.from_rotvec(φ)).as_quat()`` (Taylor series of
+    ``sin(θ/2)/θ`` at θ ≤ 1e-3, the product normalised), so the results agree bit for bit with
+    scipy 1.17 (tested) at about a twentieth of its time: the simulator draws every ADS attitude
+    this way, and a single environment draws a whole episode at each reset.
+    """
+    for i in range(q.shape[0]):
+        n = np.sqrt(q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2] + q[i, 3] * q[i, 3])
+        p0, p1, p2, p3 = q[i, 0] / n, q[i, 1] / n, q[i, 2] / n, q[i, 3] / n
+        angle = np.sqrt(phi[i, 0] * phi[i, 0] + phi[i, 1] * phi[i, 1] + phi[i, 2] * phi[i, 2])
+        if angle <= 1e-3:
+            a2 = angle * angle
+            scale = 0.5 - a2 / 48 + a2 * a2 / 3840  # sin(θ/2)/θ, Taylor
+        else:
+            scale = np.sin(angle / 2) / angle
+        r0, r1, r2, r3 = phi[i, 0] * scale, phi[i, 1] * scale, phi[i, 2] * scale, np.cos(angle / 2)
+        # p ⊗ r with the vector part as p₃ r + r₃ p + p × r
+        c0, c1, c2 = p1 * r2 - p2 * r1, p2 * r0 - p0 * r2, p0 * r1 - p1 * r0
+        o0 = p3 * r0 + r3 * p0 + c0
+        o1 = p3 * r1 + r3 * p1 + c1
+        o2 = p3 * r2 + r3 * p2 + c2
+        o3 = p3 * r3 - p0 * r0 - p1 * r1 - p2 * r2
+        m = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2 + o3 * o3)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = o0 / m, o1 / m, o2 / m, o3 / m
+
+
+@nb.njit(cache=True)
 def quat_mul_exp(q: np.ndarray, phi: np.ndarray, out: np.ndarray) -> None:
     """``C_out = C Exp(φ)``: ``q ⊗ Exp(φ)`` normalised to unit length, into ``out`` (which may
     be ``q``); ``φ`` (3,) in rad."""

@@ -25,10 +25,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from qkf.core import units
-from qkf.core.quat import cumulative_rotation
+from qkf.core.quat import compose_rotvecs, cumulative_rotation
 from qkf.transfer_alignment.config import (
     CalibrationJump,
     Config,
@@ -341,9 +340,8 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     jumps_t = np.full((b, max(1, *map(len, trial_jumps))), np.nan)
     for row, times in enumerate(trial_jumps):
         jumps_t[row, : len(times)] = times
-    ads_q = (
-        Rotation.from_quat(q_all.reshape(-1, 4)) * Rotation.from_rotvec(nu_a.reshape(-1, 3))
-    ).as_quat()
+    ads_q = np.empty((b * n, 4))  # C_ADS = C Exp(ν_a)
+    compose_rotvecs(np.ascontiguousarray(q_all).reshape(-1, 4), nu_a.reshape(-1, 3), ads_q)
     return ScenarioData(
         t=t,
         dt=dt,
