@@ -278,10 +278,8 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     n, dt, b = tp.n_epochs, tp.dt, ids.size
     t = np.arange(n) * dt
     random = sc.random_events is not None
-    omega = true_rates(sc)
-    q_true = true_attitude(omega, dt)
+    # the nominal schedule: every trial's, unless each trial draws its own below
     walk_sigma = calibration_walk_sigma(sc)
-    jumps = calibration_jumps(sc)
     jump_t = np.full(b, first_jump_s(sc))
     trial_jumps = [jump_times(sc)] * b
     sigma_a = np.full(b, tp.sigma_a)  # the true ADS attitude σ per trial, rad
@@ -332,7 +330,9 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
         kw = np.einsum("bnij,bnj->bni", calibration_matrix(calib), omega_b)
         omega_all, q_all = omega_b, q_b
     else:  # one schedule for all trials (kept on this path: same arithmetic as ever)
-        calib += jumps[None]
+        omega = true_rates(sc)
+        q_true = true_attitude(omega, dt)
+        calib += calibration_jumps(sc)[None]
         kw = np.einsum("bnij,nj->bni", calibration_matrix(calib), omega)
         omega_all = np.broadcast_to(omega, (b, n, 3))
         q_all = np.broadcast_to(q_true, (b, n, 4))
