@@ -19,12 +19,15 @@ from qkf.transfer_alignment.methods.covariance_matching import (
     window_estimate,
 )
 from qkf.transfer_alignment.methods.vbakf import (
+    VbStep,
     attitude_innovation,
     r_prior,
     run_vbakf,
     scaled_measurement,
     vb_step,
+    vb_step_compiled,
 )
+from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch, vb_epoch_serial
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
 
@@ -202,6 +205,158 @@ def test_vb_step_keeps_covariances_symmetric_positive_definite() -> None:
     # only the leading 2×2 block of R is adapted; the third row keeps its nominal noise
     np.testing.assert_array_equal(step.r[:, 2, :], np.broadcast_to(np.eye(3)[2], (b, 3)))
     assert not np.allclose(step.r[:, :2, :2], np.eye(2))
+
+
+# ---- VBAKF: the compiled step against the numpy reference --------------------------------------
+
+VB_FIELDS = ("x", "p", "u", "u_scale", "p_pred", "r")
+
+
+def _vb_inputs(seed: int, b: int, m: int) -> dict[str, np.ndarray]:
+    """Random VB inputs with 15 states: SPD P̃⁻ (eigenvalues 0.01 … 10), attitude rows
+    ``[d I, 0, 0]`` and dense rate rows (as in the filter), SPD R without cross terms between
+    the attitude rows and the rest (as in the filter), x̂⁻ ≠ 0; the last row is run_vbakf's
+    stand-in (P̃⁻ = I, z = 0, H = [I 0], R = I, x̂⁻ = 0)."""
+    rng = np.random.default_rng(seed)
+    n = 15
+    q, _ = np.linalg.qr(rng.normal(size=(b, n, n)))
+    p_nom = q @ (np.logspace(-2, 1, n)[:, None] * np.swapaxes(q, 1, 2))
+    h = np.zeros((b, m, n))
+    h[:, :3, :3] = np.eye(3) * rng.uniform(0.5, 2.0, size=(b, 1, 1))
+    if m > 3:
+        h[:, 3:, 3:] = rng.normal(size=(b, m - 3, n - 3))
+    p_nom = 0.5 * (p_nom + np.swapaxes(p_nom, 1, 2))
+    root = rng.normal(size=(b, m, m))
+    r = 0.3 * root @ np.swapaxes(root, 1, 2) + np.eye(m)
+    r[:, :3, 3:] = r[:, 3:, :3] = 0.0  # no cross terms with the adapted block: R̂ stays PD
+    x_pred = 0.1 * rng.normal(size=(b, n))
+    z = np.einsum("bij,bj->bi", h, x_pred) + 3.0 * rng.normal(size=(b, m))
+    u, uu = r_prior(np.broadcast_to(np.eye(3), (b, 3, 3)), 3.0)
+    u = u + rng.uniform(0.0, 20.0, size=b)  # a posterior some measurements on
+    uu = uu * rng.uniform(0.5, 3.0, size=(b, 1, 1))
+    p_nom[-1], z[-1], h[-1], r[-1], x_pred[-1] = np.eye(n), 0.0, np.eye(m, n), np.eye(m), 0.0
+    return {"x_pred": x_pred, "p_nom": p_nom, "z": z, "h": h, "r_nominal": r, "u_prev": u,
+            "u_scale_prev": uu}  # fmt: skip
+
+
+def _assert_vb_close(got: VbStep, ref: VbStep, rtol: float) -> None:
+    for f in VB_FIELDS:
+        want = getattr(ref, f)
+        np.testing.assert_allclose(
+            getattr(got, f), want, rtol=0.0, atol=rtol * np.abs(want).max(), err_msg=f
+        )
+
+
+@pytest.mark.parametrize("m", [3, 6])
+@pytest.mark.parametrize(
+    "adapt_p, adapt_r, isotropic", [(True, True, True), (True, True, False), (False, True, True),
+                                    (True, False, False)],
+)  # fmt: skip
+def test_compiled_vb_step_equals_the_numpy_step(
+    m: int, adapt_p: bool, adapt_r: bool, isotropic: bool
+) -> None:
+    """vb_step_compiled (Cholesky, multiplied-out Joseph form, zeros of H skipped) = vb_step
+    (LU, Joseph products) to rounding: 5 trials and a stand-in row, N = 10, every output."""
+    inp = _vb_inputs(3 + m, 6, m)
+    kw = {"tau": 3.0, "rho": 0.98, "iterations": 10, "adapt_p": adapt_p, "adapt_r": adapt_r,
+          "isotropic": isotropic}  # fmt: skip
+    ref = vb_step(**inp, **kw)  # type: ignore[arg-type]
+    got = vb_step_compiled(**inp, **kw)  # type: ignore[arg-type]
+    _assert_vb_close(got, ref, 1e-12)
+    for mat in (got.p, got.p_pred, got.u_scale):  # symmetric to the bit, as the numpy step
+        np.testing.assert_array_equal(mat, np.swapaxes(mat, 1, 2))
+    # the check can tell: one iteration fewer is another answer (x̂ moves by ~1e-3 relative)
+    fewer = vb_step_compiled(**inp, **{**kw, "iterations": 9})  # type: ignore[arg-type]
+    with pytest.raises(AssertionError):
+        _assert_vb_close(fewer, ref, 1e-6)
+
+
+def test_compiled_vb_step_keeps_a_non_finite_row_to_itself() -> None:
+    """A NaN in one trial's P̃⁻: that row comes back NaN, every other row to the bit as without
+    it (and as the numpy step to rounding)."""
+    inp = _vb_inputs(21, 5, 6)
+    kw = {"tau": 3.0, "rho": 0.98, "iterations": 10, "isotropic": True}
+    clean = vb_step_compiled(**inp, **kw)  # type: ignore[arg-type]
+    bad_inp = {k: v.copy() for k, v in inp.items()}
+    bad_inp["p_nom"][1, 0, 0] = np.nan
+    bad = vb_step_compiled(**bad_inp, **kw)  # type: ignore[arg-type]
+    others = [0, 2, 3, 4]
+    for f in VB_FIELDS:
+        np.testing.assert_array_equal(getattr(bad, f)[others], getattr(clean, f)[others], f)
+        assert np.isnan(getattr(bad, f)[1]).all(), f
+    _assert_vb_close(clean, vb_step(**inp, **kw), 1e-12)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("epoch", [vb_epoch, vb_epoch_serial])
+def test_compiled_epoch_equals_scaled_measurement_and_vb_step(epoch) -> None:  # type: ignore[no-untyped-def]
+    """One measurement epoch of run_vbakf, compiled (measurement model, checks, N iterations,
+    hand-over), against scaled_measurement + vb_step at the same filter state; trial 2 has no
+    measurement, trial 3 has diverged: both keep P̃⁻, σ_a and the R posterior, κ = 1. A
+    non-finite measurement makes its trial bad and leaves the others alone."""
+    cfg = cfg_with(
+        "scenario.duration_s=80",
+        "scenario.ads.attitude_sigma_arcsec=10",
+        "filter.attitude_sigma_arcsec=3",
+    )
+    data = simulate(cfg, 4, 4)
+    kf = new_filter(cfg, data)
+    kf.step_data(data, 0, 60)
+    k, tau, rho, iters = 60, 3.0, 0.98, 10
+    prm = kf.params
+    d = np.ascontiguousarray(prm.p0_sigma)
+    p_nom = kf.P / np.outer(d, d)
+    nu, h, r, e = scaled_measurement(kf, data.gyro[:, k], data.ads_q[:, k], data.ads_rate[:, k])
+    u0, uu0 = r_prior(np.broadcast_to(np.eye(3), (4, 3, 3)), 3.0)
+    u0 = u0 + np.arange(4.0)  # a different R posterior per trial
+    vb = vb_step(np.zeros((4, 15)), p_nom, nu, h, r, u0, uu0, tau=tau, rho=rho,
+                 iterations=iters, isotropic=True)  # fmt: skip
+    q_step = np.ascontiguousarray(prm.qp0 * prm.dt / d[6:] ** 2)
+    kf.diverged[3] = True
+    inactive = np.array([False, False, True, True])
+    u, uu, sigma = u0.copy(), uu0.copy(), kf.sigma_a.copy()
+    p_out, kap, bad = np.empty((4, 15, 15)), np.empty((4, 9)), np.ones(4, dtype=bool)
+    epoch(
+        k, p_nom, kf.q_hat, kf.b_hat, kf.p_hat, inactive, data.gyro, data.ads_q, data.ads_rate,
+        d, e, np.array([prm.dt, prm.sigma_a, prm.sigma_r, prm.sigma_v]),
+        np.array([tau, rho, 0.01, 100.0, iters]), np.array([True, True]), q_step, u, uu, sigma,
+        p_out, kap, bad,
+    )  # fmt: skip
+    live = [0, 1]
+    assert not bad.any()
+    np.testing.assert_allclose(p_out[live], vb.p_pred[live], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sigma[live], np.sqrt(vb.r[live, 0, 0]) * e[0], rtol=1e-12)
+    assert np.all(sigma[live] > 1.2 * prm.sigma_a)  # the 10″ noise is seen
+    np.testing.assert_array_equal(u[live], vb.u[live])
+    np.testing.assert_allclose(uu[live], vb.u_scale[live], rtol=0, atol=1e-12 * np.abs(uu).max())
+    # κ_i = clip(1 + (P̂⁻ − P̃⁻)_ii / (q_p0 Δt)) of the P̂⁻ handed over; against the numpy P̂⁻
+    # it would only agree to ~1e-8: P̃⁻_ii ≈ 1e7–1e8 q_p0 Δt here, so the rounding is amplified
+    calib = np.arange(6, 15)
+    delta = p_out[:, calib, calib] - p_nom[:, calib, calib]
+    want = np.clip(1.0 + delta / q_step, 0.01, 100.0)
+    np.testing.assert_allclose(kap[live], want[live], rtol=1e-14)
+    assert np.ptp(kap[live]) > 1.0  # the clip is not all there is
+    # inactive rows: nothing inferred, nothing changed
+    np.testing.assert_array_equal(p_out[2:], p_nom[2:])
+    np.testing.assert_array_equal(kap[2:], 1.0)
+    np.testing.assert_array_equal(sigma[2:], kf.sigma_a[2:])
+    np.testing.assert_array_equal(u[2:], u0[2:])
+    np.testing.assert_array_equal(uu[2:], uu0[2:])
+    # a NaN ADS sample in trial 1: that trial is bad and keeps P̃⁻, trial 0 is unchanged
+    ads_q = data.ads_q.copy()
+    ads_q[1, k, 0] = np.nan
+    u1, uu1, sigma1 = u0.copy(), uu0.copy(), kf.sigma_a.copy()
+    p1, kap1, bad1 = np.empty((4, 15, 15)), np.empty((4, 9)), np.zeros(4, dtype=bool)
+    epoch(
+        k, p_nom, kf.q_hat, kf.b_hat, kf.p_hat, inactive, data.gyro, ads_q, data.ads_rate,
+        d, e, np.array([prm.dt, prm.sigma_a, prm.sigma_r, prm.sigma_v]),
+        np.array([tau, rho, 0.01, 100.0, iters]), np.array([True, True]), q_step, u1, uu1,
+        sigma1, p1, kap1, bad1,
+    )  # fmt: skip
+    assert bad1.tolist() == [False, True, False, False]
+    np.testing.assert_array_equal(p1[1], p_nom[1])
+    assert (sigma1[1], u1[1]) == (kf.sigma_a[1], u0[1])
+    for new, old in ((p1, p_out), (kap1, kap), (sigma1, sigma), (u1, u), (uu1, uu)):
+        np.testing.assert_array_equal(new[[0, 2, 3]], old[[0, 2, 3]])
 
 
 # ---- VBAKF on the transfer-alignment filter ----------------------------------------------------

@@ -36,12 +36,21 @@ Transfer alignment (:func:`run_vbakf`). The error state is reset after every upd
 1. ``P̃⁻`` is the compiled filter's predicted covariance (κ = 1, with the correlated-noise
    terms of the rate matching), ``H``, ``R`` and ``ν`` its measurement model
    (:mod:`qkf.transfer_alignment.model`) at the current estimate;
-2. :func:`vb_step` runs the N iterations in numpy, in the filter's scaled units
-   (``P̃ = D⁻¹ P D⁻¹``, measurement rows divided by their nominal sigmas);
+2. the N iterations run in the filter's scaled units (``P̃ = D⁻¹ P D⁻¹``, measurement rows
+   divided by their nominal sigmas);
 3. the filter is handed ``P̂⁻`` (``kf.P``) and the adapted attitude sigma (``kf.sigma_a``) of
    the last iteration and runs its own update (the same Joseph update, in scaled units), the
-   reset and the propagation with the nominal ``Q̃``. Its posterior equals the numpy ``P⁽ᴺ⁾``
+   reset and the propagation with the nominal ``Q̃``. Its posterior equals the VB ``P⁽ᴺ⁾``
    to rounding (a test checks it).
+
+Steps 1–2 and the hand-over run compiled, one call per measurement epoch for all trials
+(:func:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_epoch`, the same equations as
+:func:`vb_step`, Joseph form multiplied out, trials in parallel). :func:`vb_step` and
+:func:`scaled_measurement` are the numpy reference: the tests check the compiled epoch against
+them (to 1e-12), and :func:`vb_step_compiled` is the compiled step with :func:`vb_step`'s
+interface. The compiled rate matrix ``A`` is the filter's own (adjugate, not ``np.linalg.inv``);
+a measurement model that cannot be formed (``I + K(p̂)`` singular) or whose ``S`` has a
+non-positive Cholesky pivot ends the trial like a non-finite one.
 
 Departures, all forced by the filter's measurement model: only the attitude block of ``R`` is
 adapted (``m = 3`` in the IW of R; the rate-row noise ``R_r`` stays as assumed, its cross terms
@@ -72,9 +81,9 @@ follows the ADS (9.6″). Fewer iterations (N = 3), a tighter prior (τ = 30) or
 Safeguards: ``P̂⁻`` is a positive combination of positive semi-definite matrices and the update
 is Joseph-form, so both stay symmetric positive semi-definite (symmetrised after each
 product); ``Û`` stays positive definite because ``B ⪰ H P Hᵀ``. A trial whose numbers go
-non-finite is flagged diverged and frozen by the filter (NaN in its rows); the linear algebra
-of inactive rows (diverged, or no measurement) runs on harmless stand-ins and is discarded, so
-one trial never affects another.
+non-finite is flagged diverged and frozen by the filter (NaN in its rows); inactive rows
+(diverged, or no measurement) are not iterated and keep ``P̃⁻``, and each trial's compiled step
+reads and writes only its own rows, so one trial never affects another.
 """
 
 from __future__ import annotations
@@ -94,7 +103,14 @@ from qkf.transfer_alignment.methods.base import (
     uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
+from qkf.transfer_alignment.methods.vbakf_compiled import (
+    SERIAL_BELOW,
+    vb_epoch,
+    vb_epoch_serial,
+    vb_rows,
+)
 from qkf.transfer_alignment.model_compiled import attitude_innovation
+from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
@@ -195,6 +211,58 @@ def vb_step(
     return VbStep(x=x, p=p, u=u, u_scale=u_scale, p_pred=p_hat, r=r)
 
 
+def vb_step_compiled(
+    x_pred: np.ndarray,
+    p_nom: np.ndarray,
+    z: np.ndarray,
+    h: np.ndarray,
+    r_nominal: np.ndarray,
+    u_prev: np.ndarray,
+    u_scale_prev: np.ndarray,
+    *,
+    tau: float,
+    rho: float,
+    iterations: int,
+    adapt_p: bool = True,
+    adapt_r: bool = True,
+    isotropic: bool = False,
+) -> VbStep:
+    """:func:`vb_step` compiled (:func:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_rows`):
+    the same arguments and results, to rounding, for the 15 error states (n = 15); rows in
+    parallel and independent of each other. A row whose ``S`` has a non-positive Cholesky pivot
+    (or NaN) gets NaN everywhere."""
+    if iterations < 1:
+        raise ValueError("iterations must be at least 1")
+    if np.shape(h)[-1] != model.N_STATES:
+        raise ValueError(f"the compiled VB step is for {model.N_STATES} states, H is {np.shape(h)}")
+    x_pred = np.asarray(x_pred, dtype=float)
+    p_nom = np.ascontiguousarray(p_nom, dtype=float)
+    h = np.ascontiguousarray(h, dtype=float)
+    r_nominal = np.ascontiguousarray(r_nominal, dtype=float)
+    b, m, n = h.shape
+    a = np.shape(u_scale_prev)[-1]
+    nu = np.ascontiguousarray(np.asarray(z, dtype=float) - np.einsum("bij,bj->bi", h, x_pred))
+    dx, u = np.empty((b, n)), np.empty(b)
+    p, p_hat = np.empty((b, n, n)), np.empty((b, n, n))
+    r, u_scale = np.empty((b, m, m)), np.empty((b, a, a))
+    vb_rows(
+        p_nom, nu, h, r_nominal,
+        np.ascontiguousarray(u_prev, dtype=float), np.ascontiguousarray(u_scale_prev, dtype=float),
+        float(tau), float(rho), int(iterations), bool(adapt_p), bool(adapt_r), bool(isotropic),
+        dx, p, p_hat, r, u, u_scale,
+    )  # fmt: skip
+    return VbStep(x=x_pred + dx, p=p, u=u, u_scale=u_scale, p_pred=p_hat, r=r)
+
+
+def row_scales(prm: FilterParams) -> np.ndarray:
+    """The filter's measurement row scales ``e`` (m,): ``e_a = σ_a`` (rad, the assumed, not the
+    adapted sigma) and, with rate matching, ``e_r = √(σ_r² + σ_v²/Δt)`` (rad/s)."""
+    e = np.full(3, prm.sigma_a)
+    if prm.use_rate:
+        e = np.concatenate([e, np.full(3, math.sqrt(prm.sigma_r**2 + prm.sigma_v**2 / prm.dt))])
+    return e
+
+
 def scaled_measurement(
     kf: TransferAlignmentKF, gyro: np.ndarray, ads_q: np.ndarray, ads_rate: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -215,10 +283,9 @@ def scaled_measurement(
         w_hat, a, prm.dt, prm.sigma_a, prm.sigma_r, prm.sigma_v, prm.use_rate
     )
     nu = attitude_innovation(kf.q_hat, ads_q)  # z_a = Log(Ĉᵀ C_ADS)
-    e = np.full(3, prm.sigma_a)
+    e = row_scales(prm)
     if prm.use_rate:
         nu = np.concatenate([nu, ads_rate - w_hat], axis=-1)  # z_r = ω_ADS − ω̂
-        e = np.concatenate([e, np.full(3, math.sqrt(prm.sigma_r**2 + prm.sigma_v**2 / prm.dt))])
     d = prm.p0_sigma
     return nu / e, h * d / e[:, None], r / np.outer(e, e), e
 
@@ -250,51 +317,32 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
     kappa_log = np.ones((b, n, 9))
     sigma_log = np.empty((b, n))
     dof_log = np.empty((b, n))
-    x0 = np.zeros((b, 15))
+    # the compiled epoch (vbakf_compiled.vb_epoch): model constants, settings, outputs
+    e = row_scales(prm)
+    consts = np.array([prm.dt, prm.sigma_a, prm.sigma_r, prm.sigma_v], dtype=float)
+    settings = np.array([st.tau, st.forgetting, k_min, k_max, st.iterations], dtype=float)
+    flags = np.array([st.adapt_p, st.adapt_r], dtype=bool)
+    gyro = np.ascontiguousarray(data.gyro, dtype=float)
+    ads_q = np.ascontiguousarray(data.ads_q, dtype=float)
+    ads_rate = np.ascontiguousarray(data.ads_rate, dtype=float)
+    d = np.ascontiguousarray(d, dtype=float)
+    q_step = np.ascontiguousarray(q_step, dtype=float)
+    p_out = np.empty((b, 15, 15))
+    kap = np.empty((b, 9))
+    bad = np.zeros(b, dtype=bool)
+    epoch = vb_epoch if b >= SERIAL_BELOW else vb_epoch_serial
     for k in range(n):
         active = has_meas[:, k] & ~kf.diverged
         if np.any(active):
             p_nom = kf.P / dd  # P̃⁻ in scaled units
-            nu, h, r, e = scaled_measurement(
-                kf, data.gyro[:, k], data.ads_q[:, k], data.ads_rate[:, k]
-            )
-            # inactive rows (diverged, no measurement) compute on stand-ins and are discarded
-            ok = active & np.isfinite(p_nom).all(axis=(1, 2)) & np.isfinite(nu).all(axis=1)
-            ok &= np.isfinite(h).all(axis=(1, 2)) & np.isfinite(r).all(axis=(1, 2))
-            m3 = ok[:, None, None]
-            vb = vb_step(
-                x0,
-                np.where(m3, p_nom, np.eye(15)),
-                np.where(ok[:, None], nu, 0.0),
-                np.where(m3, h, np.eye(h.shape[1], 15)),
-                np.where(m3, r, np.eye(r.shape[1])),
-                u,
-                u_scale,
-                tau=st.tau,
-                rho=st.forgetting,
-                iterations=st.iterations,
-                adapt_p=st.adapt_p,
-                adapt_r=st.adapt_r,
-                isotropic=True,
-            )
-            p_hat = np.where(m3, vb.p_pred, p_nom)
-            bad = active & ~(ok & np.isfinite(vb.p_pred).all(axis=(1, 2)))
+            # model, checks, N iterations, hand-over: P̂⁻ (p_out), σ̂_a, û, Û, κ per trial
+            epoch(
+                k, p_nom, kf.q_hat, kf.b_hat, kf.p_hat, ~active, gyro, ads_q, ads_rate, d, e,
+                consts, settings, flags, q_step, u, u_scale, kf.sigma_a, p_out, kap, bad,
+            )  # fmt: skip
             kf.diverged |= bad  # a non-finite VB step ends the trial (NaN rows from here on)
-            kf.P = np.where(m3, p_hat, p_nom) * dd
-            if st.adapt_r:
-                r_att = vb.r[:, 0, 0] * e[0] ** 2  # σ̂_a² = tr(R̂_a)/3 (isotropic, SI)
-                good = ok & np.isfinite(r_att) & (r_att > 0.0)
-                kf.sigma_a[:] = np.where(good, np.sqrt(np.where(good, r_att, 1.0)), kf.sigma_a)
-                u = np.where(good, vb.u, u)
-                u_scale = np.where(good[:, None, None], vb.u_scale, u_scale)
-            # effective κ of the calibration block: 1 + (P̂⁻ − P̃⁻)_ii / (q_p0 Δt)
-            delta = (
-                np.diagonal(p_hat, axis1=1, axis2=2)[:, model.CALIB]
-                - np.diagonal(p_nom, axis1=1, axis2=2)[:, model.CALIB]
-            )
-            with np.errstate(invalid="ignore"):
-                kap = np.clip(1.0 + delta / q_step, k_min, k_max)
-            kappa_log[:, k] = np.where(np.isfinite(kap), kap, 1.0)
+            kf.P = p_out * dd
+            kappa_log[:, k] = kap
         sigma_log[:, k] = kf.sigma_a
         dof_log[:, k] = u
         rec = step_recording(kf, data, k, k + 1, 1.0, cov)  # update with P̂⁻, σ̂_a; nominal Q̃
