@@ -43,10 +43,10 @@ def main() -> None:
     sa, sb = rows(args.old / "summary.csv"), rows(args.new / "summary.csv")
     rel = 0.0
     for ra, rb in zip(sa, sb, strict=True):
-        for col, x in ra.items():
-            if col in ("method", "runtime_s") or not x or not rb[col]:
+        for col, text in ra.items():
+            if col in ("method", "runtime_s") or not text or not rb[col]:
                 continue
-            xf, yf = float(x), float(rb[col])
+            xf, yf = float(text), float(rb[col])
             if xf == xf:  # not NaN
                 rel = max(rel, abs(xf - yf) / max(abs(xf), 1e-300))
     print(f"summary.csv: max relative difference {rel:.2e}")

@@ -6,17 +6,24 @@ Model probabilities follow the innovation likelihood of each filter::
 
 with a floor on each weight (renormalised) so that no model is locked out for good. The output
 is the weighted estimate: ``b̂``, ``p̂`` as weighted means, the attitude as the weighted mean
-rotation vector about the most probable filter's attitude. The filters do not interact, so the
-whole bank runs as one batch of A × B filters, in blocks of epochs to bound memory.
+rotation vector about the most probable filter's attitude. The filters do not interact.
+
+:func:`run_mmae` runs the whole bank (A × B filters) in one compiled call
+(:func:`~qkf.transfer_alignment.methods.bank_compiled.run_bank`): the filter epoch, the weight
+recursion and the combination per trial and epoch, trials in parallel. The numpy functions here
+(:func:`update_log_weights`, :func:`combine`, and :func:`run_mmae_reference`, the same method
+driven from numpy in blocks of epochs) are its documented references; the tests check the
+compiled bank against them.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from qkf.core.so3 import quat_conj, quat_exp, quat_log, quat_mul
 from qkf.transfer_alignment.config import Config, MmaeConfig
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
+from qkf.transfer_alignment.methods.bank_compiled import run_bank
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
@@ -51,20 +58,21 @@ def update_log_weights(log_w: np.ndarray, loglik: np.ndarray, floor: float) -> n
 
 
 def combine(est: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted estimate from a bank: ``est`` (B, A, n, 16), ``w`` (B, A, n) → (B, n, 16)."""
-    b, n_act, n, _ = est.shape
-    out = np.empty((b, n, 16))
+    """Weighted estimate from a bank: ``est`` (B, A, n, 16), ``w`` (B, A, n) → (B, n, 16)::
+
+        b̂ = Σ_j w_j b̂_j,   p̂ = Σ_j w_j p̂_j
+        δθ_j = Log(Ĉ_refᵀ Ĉ_j),   Ĉ = Ĉ_ref Exp(Σ_j w_j δθ_j)   (normalised)
+
+    with ``Ĉ_ref`` the estimate of the most probable model (the first, on a tie); rad.
+    """
+    out = np.empty((est.shape[0], est.shape[2], 16))
     out[..., 4:] = np.einsum("ban,banj->bnj", w, est[..., 4:])
     best = w.argmax(axis=1)  # (B, n)
-    q_ref = np.take_along_axis(est[..., 0:4], best[:, None, :, None], axis=1)[:, 0]  # (B, n, 4)
-    ref = Rotation.from_quat(np.repeat(q_ref[:, None], n_act, axis=1).reshape(-1, 4))
-    rel = (ref.inv() * Rotation.from_quat(est[..., 0:4].reshape(-1, 4))).as_rotvec()
-    mean_rel = np.einsum("ban,banj->bnj", w, rel.reshape(b, n_act, n, 3))
-    out[..., 0:4] = (
-        (Rotation.from_quat(q_ref.reshape(-1, 4)) * Rotation.from_rotvec(mean_rel.reshape(-1, 3)))
-        .as_quat()
-        .reshape(b, n, 4)
-    )
+    q_ref = np.take_along_axis(est[..., 0:4], best[:, None, :, None], axis=1)  # (B, 1, n, 4)
+    rel = quat_log(quat_mul(quat_conj(q_ref), est[..., 0:4]))  # δθ_j = Log(Ĉ_refᵀ Ĉ_j)
+    mean_rel = np.einsum("ban,banj->bnj", w, rel)  # Σ_j w_j δθ_j
+    q = quat_mul(q_ref[:, 0], quat_exp(mean_rel))  # Ĉ_ref Exp(Σ_j w_j δθ_j)
+    out[..., 0:4] = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return out
 
 
@@ -123,7 +131,47 @@ def record_bank_covariance(
 
 @uses_settings("mmae", MmaeConfig)
 def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
-    """The bank over all trials; logs the model probabilities per epoch (``weights``)."""
+    """The bank over all trials, compiled (module doc); logs the model probabilities per epoch
+    (``weights``)."""
+    kappas = action_values(cfg)
+    n_act = kappas.size
+    b = data.n_trials
+    bank = new_filter(cfg, data, n_copies=n_act)  # row = trial * A + model
+    cov = CovarianceRecorder(cfg, b)
+    run = run_bank(
+        bank,
+        data.gyro,
+        data.ads_q,
+        data.ads_rate,
+        data.has_meas,
+        kappas,
+        cov.epochs,
+        cov.cov,
+        floor=cfg.adaptive.mmae.weight_floor,
+    )
+    return _output(bank, kappas, run.est, run.weights, cov.cov)
+
+
+def _output(
+    bank: TransferAlignmentKF,
+    kappas: np.ndarray,
+    est: np.ndarray,
+    weights: np.ndarray,
+    cov: np.ndarray,
+) -> MethodOutput:
+    """The method's output from the bank's combined estimates and weights (B, N, A)."""
+    b, _, n_act = weights.shape
+    diverged = np.asarray(bank.diverged.reshape(b, n_act).all(axis=1))
+    # κ in use: the probability-weighted geometric mean of the bank's κ
+    kappa = np.exp(weights @ np.log(kappas))
+    return MethodOutput(est=est, diverged=diverged, kappa=kappa, logs={"weights": weights}, cov=cov)
+
+
+def run_mmae_reference(cfg: Config, data: ScenarioData) -> MethodOutput:
+    """:func:`run_mmae` driven from numpy: the bank in blocks of ``BLOCK`` epochs through the
+    filter's :meth:`~TransferAlignmentKF.step`, then :func:`update_log_weights` epoch by epoch and
+    :func:`combine` per block. The reference the compiled bank is tested against (equal to
+    rounding); about twice as slow."""
     kappas = action_values(cfg)
     n_act = kappas.size
     b, n = data.n_trials, data.n_epochs
@@ -148,9 +196,4 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
         bank_est = neutral_dead(rec.est.reshape(b, n_act, k1 - k0, 16))
         est[:, sl] = combine(bank_est, w_block)
         record_bank_covariance(cov, bank_cov, k0, bank_est, w_block, est[:, sl])
-    diverged = np.asarray(bank.diverged.reshape(b, n_act).all(axis=1))
-    # κ in use: the probability-weighted geometric mean of the bank's κ
-    kappa = np.exp(weights @ np.log(kappas))
-    return MethodOutput(
-        est=est, diverged=diverged, kappa=kappa, logs={"weights": weights}, cov=cov.cov
-    )
+    return _output(bank, kappas, est, weights, cov.cov)
