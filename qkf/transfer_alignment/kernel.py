@@ -57,7 +57,7 @@ from qkf.core.kalman import (
     cholesky_inplace,
     forward_solve,
     make_workspace,
-    update_one,
+    update_sized,
 )
 from qkf.core.quat import quat_mul_exp, skew_and_square
 from qkf.transfer_alignment.model_compiled import (
@@ -141,12 +141,12 @@ class _Scratch(NamedTuple):
     a: np.ndarray  # (3, 3) A = (I + K(p̂))⁻¹
     w: np.ndarray  # (3,) ω̂
     aom: np.ndarray  # (3, 9) A Ω(ω̂)
-    h: np.ndarray  # (m, 15) H̃
+    h: np.ndarray  # (m, NP) H̃, zero in the padding column
     r: np.ndarray  # (m, m) R̃
-    x: np.ndarray  # (15,) x̃ = D⁻¹ δx, then δx
+    x: np.ndarray  # (NP,) x̃ = D⁻¹ δx, then δx (zero in the padding entry)
     nu: np.ndarray  # (m,) ν̃
     s_keep: np.ndarray  # (m, m) S̃
-    ws: tuple[np.ndarray, ...]  # update_one workspace: Kᵀ, chol(S̃), S̃⁻¹ ν̃, ...
+    ws: tuple[np.ndarray, ...]  # update workspace (NP columns): Kᵀ, chol(S̃), S̃⁻¹ ν̃, ...
     vec: np.ndarray  # (3,)
     y3: np.ndarray  # (3,)
     s3: np.ndarray  # (3, 3)
@@ -167,6 +167,7 @@ class _Scratch(NamedTuple):
     c_tr: np.ndarray  # (3, 3) C̃_θr
     w_corr: np.ndarray  # (3, 15)
     sinv_rr: np.ndarray  # (3, 3)
+    p: np.ndarray  # (NP, NP) P̃ of the trial, padded by a zero row and column
 
 
 @kernel_jit()
@@ -320,12 +321,12 @@ def _make_scratch(m: int) -> _Scratch:
         np.empty((3, 3)),  # a
         np.empty(3),  # w
         np.empty((3, 9)),  # aom
-        np.zeros((m, 15)),  # h: only its structural non-zeros are ever written
+        np.zeros((m, NP)),  # h: only its structural non-zeros are ever written
         np.zeros((m, m)),  # r: idem
-        np.zeros(15),  # x
+        np.zeros(NP),  # x
         np.empty(m),  # nu
         np.empty((m, m)),  # s_keep
-        make_workspace(15, m),  # ws
+        make_workspace(NP, m),  # ws
         np.empty(3),  # vec
         np.empty(3),  # y3
         np.empty((3, 3)),  # s3
@@ -346,7 +347,37 @@ def _make_scratch(m: int) -> _Scratch:
         np.empty((3, 3)),  # c_tr
         np.empty((3, 15)),  # w_corr
         np.empty((3, 3)),  # sinv_rr
+        np.zeros((NP, NP)),  # p
     )
+
+
+NP = 16
+"""The state dimension the update works in: the 15 states and one zero padding entry, so that
+rows of P̃ are two vectors of eight (or four of four) with no remainder."""
+
+
+@kernel_jit()
+def _update_padded(
+    x: np.ndarray,
+    p: np.ndarray,
+    nu: np.ndarray,
+    h: np.ndarray,
+    r: np.ndarray,
+    s_out: np.ndarray,
+    ws: tuple[np.ndarray, ...],
+    m: int,
+) -> tuple[bool, float, float]:
+    """The Joseph-form update :func:`qkf.core.kalman.update_sized` of one trial on the padded
+    arrays (``x`` (NP,), ``p`` (NP, NP), ``h`` (m, NP)), with n = NP and m = 3 or 6 constants
+    at compile time: each branch is a copy specialised to its sizes.
+
+    The padding row and column of ``p`` stay zero: ``H̃`` is zero in the padding column, so
+    ``U = H̃ P̃``, ``K̃`` and the correction are zero there too. The numbers differ from the
+    unpadded update only by the rounding of reassociated sums (docs/performance.md).
+    """
+    if m == 6:
+        return update_sized(x, p, nu, h, r, s_out, ws, NP, 6, True)
+    return update_sized(x, p, nu, h, r, s_out, ws, NP, 3, True)
 
 
 @kernel_jit(inline=True)
@@ -416,7 +447,7 @@ def _measurement_update_and_reset(
             for l in range(9):
                 h[3 + i, 6 + l] = -s.aom[i, l] * sc.d_er[6 + l]
     # S̃ = H̃ P̃ H̃ᵀ + R̃,  K̃ = P̃ H̃ᵀ S̃⁻¹,  x̃ = K̃ ν̃,  P̃ ← (I − K̃H̃) P̃ (I − K̃H̃)ᵀ + K̃ R̃ K̃ᵀ
-    ok, nis, logdet = update_one(s.x, p, nu, h, r, s.s_keep, s.ws)
+    ok, nis, logdet = _update_padded(s.x, p, nu, h, r, s.s_keep, s.ws, 6 if use_rate else 3)
     if not ok:
         return False, True
     # log det S = log det S̃ + 2 Σ log eᵢ
@@ -676,7 +707,13 @@ def _epoch_loop(
     """Per epoch of trial ``bi``: measurement update and reset, records, then propagation to
     the next epoch (module doc). Compiled without the NRT (see :func:`qkf.core.jit.kernel_jit`)."""
     q_hat, b_hat, p_hat = state.q_hat[bi], state.b_hat[bi], state.p_hat[bi]
-    p = state.pt[bi]
+    # P̃ padded to NP × NP for the epochs of this call: the update's loops then have constant
+    # trip counts (see _update_padded); the padding row and column stay zero throughout
+    p = s.p
+    pt = state.pt[bi]
+    for i in range(15):
+        for j in range(15):
+            p[i, j] = pt[i, j]
     gyro, ads_q, ads_rate = inputs.gyro[bi], inputs.ads_q[bi], inputs.ads_rate[bi]
     has_meas, kappa = inputs.has_meas[bi], inputs.kappa[bi]
     e_a = inputs.sigma_a[bi]
@@ -736,6 +773,9 @@ def _epoch_loop(
         phi_top_rows(s.rr, s.gg, a, s.aom, sc.ratio, s.phi_top)
         _qd_quadrature(s.wx, s.wx2, rate, a, w, c, sc.max_nodes, s)
         _propagate_covariance(p, q_hat, a, c, sc, s, updated_rate)
+    for i in range(15):
+        for j in range(15):
+            pt[i, j] = p[i, j]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
