@@ -8,7 +8,8 @@ runs: the agent's filter (one decision period), the κ = 1 shadow where the rewa
 observation needs the likelihood gain, and the reference filter of the ``*_gain`` rewards (a
 whole episode at each reset, spread over the episode's steps). The reference is a plain
 filterpy loop of the same 15-state filter (predict/update with matrices evaluated beforehand,
-``benchmarks/filter_speed.py``), timed in the same run: ``single_env_vs_filterpy`` is the ratio
+``benchmarks/filter_speed.py``), timed in the same run, best of six runs before and after the
+environments (each environment: best of three windows): ``single_env_vs_filterpy`` is the ratio
 of filter-epochs per second (goal ≥ 2).
 
 ``--subproc N``: Stable-Baselines3's ``SubprocVecEnv`` with N single environments against one
@@ -36,13 +37,19 @@ from filter_speed import filterpy_rate
 from qkf.transfer_alignment.config import load_config
 
 
-def steps_per_s(step, seconds: float) -> float:  # type: ignore[no-untyped-def]
+def steps_per_s(step, seconds: float, windows: int = 3) -> float:  # type: ignore[no-untyped-def]
+    """Calls per second of ``step``: the best of ``windows`` windows sharing ``seconds`` (on a
+    shared machine, interference only slows a window down; the reference is timed the same
+    way, best of its repeats)."""
     step()
-    calls, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        step()
-        calls += 1
-    return calls / (time.perf_counter() - t0)
+    best = 0.0
+    for _ in range(windows):
+        calls, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds / windows:
+            step()
+            calls += 1
+        best = max(best, calls / (time.perf_counter() - t0))
+    return best
 
 
 def single_rate(env_id: str, seconds: float) -> tuple[float, float]:
@@ -90,10 +97,15 @@ def main() -> None:
         for env_id in envs.ENVIRONMENTS.names()
         if envs.ENVIRONMENTS[env_id].problem == "transfer_alignment"
     ]
-    ref = filterpy_rate(load_config("paper"), 2)
-    print(f"filterpy loop: {ref:,.0f} filter-epochs/s; cpus {os.cpu_count()}")
+    cfg = load_config("paper")
+    ref = filterpy_rate(cfg, 2, repeats=3)
+    rows = []
     for env_id in ids:
         rate, per_step = single_rate(env_id, args.seconds)
+        rows.append((env_id, rate, per_step))
+    ref = max(ref, filterpy_rate(cfg, 2, repeats=3))  # best of before and after the envs
+    print(f"filterpy loop: {ref:,.0f} filter-epochs/s (best of 6 runs); cpus {os.cpu_count()}")
+    for env_id, rate, per_step in rows:
         print(
             f"{env_id:32s} {rate:8,.0f} env-steps/s  {per_step:5.1f} filter-epochs/step  "
             f"{rate * per_step:10,.0f} filter-epochs/s  "
