@@ -218,7 +218,7 @@ def test_relative_rotvecs_batch_matches_numpy_and_scipy() -> None:
     phi = _rotvecs(22)
     m = phi.shape[0]
     q_from = _rotations(21, m) * rng.uniform(0.5, 2.0, size=(m, 1))  # not unit length
-    q_to = np.array([so3.quat_mul(q, so3.quat_exp(p)) for q, p in zip(q_from, phi)])
+    q_to = np.array([so3.quat_mul(q, so3.quat_exp(p)) for q, p in zip(q_from, phi, strict=True)])
     q_to[1::2] *= -rng.uniform(0.5, 2.0, size=(q_to[1::2].shape[0], 1))  # other sign, scale
     q_from[7, 2] = np.nan
     q_to[11, 0] = np.inf
