@@ -47,7 +47,7 @@ import numba as nb
 import numpy as np
 
 from qkf.core.jit import FASTMATH, kernel_jit
-from qkf.core.kalman import cholesky_inplace
+from qkf.core.kalman import update_sized
 from qkf.transfer_alignment.model import N_STATES
 from qkf.transfer_alignment.model_compiled import attitude_residual, rate_estimate, rate_jacobian
 
@@ -85,7 +85,7 @@ def vb_iterate(
     Outputs: ``dx`` (n,) ``x̂⁽ᴺ⁾ − x̂⁻``; ``p`` (n, n) ``P⁽ᴺ⁾``; ``p_hat`` (n, n) ``P̂⁻`` and
     ``r`` (m, m) ``R̂`` of the last iteration; ``us`` (a, a) ``Û``. With ``posterior`` False
     the last iteration stops after ``P̂⁻`` and ``R̂`` (its gain, ``dx`` and ``p`` are not
-    formed; ``dx``, ``p`` then hold the iterate N − 1). ``ws`` (≥ 6, ≥ max(m, a + 1),
+    formed; ``dx``, ``p`` then hold the iterate N − 1). ``ws`` (≥ 7, ≥ max(m, a + 1),
     ≥ max(m, n)) is scratch.
 
     Returns ``(ok, û)``; ``ok`` is False if a Cholesky pivot of ``S`` is not positive (or NaN);
@@ -174,76 +174,19 @@ def vb_iterate(
                         r[i, j] = us[i, j] / den  # R̂_a = Û / (û − a − 1)
         if last and not posterior:
             break
-        # U = H P̂⁻ (m × n), zeros of H skipped; P̂⁻ is symmetric: row c = column c
-        for i in range(m):
-            for j in range(n):
-                ut[i, j] = 0.0
-            for c in range(n):
-                hc = h[i, c]
-                if hc != 0.0:
-                    for j in range(n):
-                        ut[i, j] += hc * p_hat[c, j]
-        # H P̂⁻ Hᵀ = U Hᵀ;  S = sym(H P̂⁻ Hᵀ + R̂)
-        for i in range(m):
-            for j in range(m):
-                v = 0.0
-                for c in range(n):
-                    v += ut[i, c] * h[j, c]
-                hph[i, j] = v
-        for i in range(m):
-            for j in range(m):
-                s[i, j] = 0.5 * ((hph[i, j] + r[i, j]) + (hph[j, i] + r[j, i]))
-        if not cholesky_inplace(s[:m, :m]):  # S = L Lᵀ
-            return False, u
-        # Kᵀ = S⁻¹ U = L⁻ᵀ L⁻¹ U: forward then backward substitution on whole rows
-        for i in range(m):
-            for j in range(n):
-                kt[i, j] = ut[i, j]
-        for i in range(m):
-            for c in range(i):
-                lic = s[i, c]
-                for j in range(n):
-                    kt[i, j] -= lic * kt[c, j]
-            inv = 1.0 / s[i, i]
-            for j in range(n):
-                kt[i, j] *= inv
-        for i in range(m - 1, -1, -1):
-            for c in range(i + 1, m):
-                lci = s[c, i]
-                for j in range(n):
-                    kt[i, j] -= lci * kt[c, j]
-            inv = 1.0 / s[i, i]
-            for j in range(n):
-                kt[i, j] *= inv
-        # δx̂⁽ⁱ⁺¹⁾ = K ν  (x̂ = x̂⁻ + K (z − H x̂⁻))
-        for j in range(n):
-            dx[j] = 0.0
-        for c in range(m):
-            nc = nu[c]
-            for j in range(n):
-                dx[j] += kt[c, j] * nc
-        # Joseph form P = (I − K H) P̂⁻ (I − K H)ᵀ + K R̂ Kᵀ, multiplied out:
-        #   P = P̂⁻ − K U + (K (H P̂⁻ Hᵀ + R̂) − Uᵀ) Kᵀ
-        for j in range(m):  # gᵀ = (K (H P̂⁻ Hᵀ + R̂) − Uᵀ)ᵀ, row by row
-            for i in range(n):
-                g[j, i] = -ut[j, i]
-            for c in range(m):
-                coef = r[c, j] + hph[c, j]
-                for i in range(n):
-                    g[j, i] += coef * kt[c, i]
+        # the Joseph-form update from P̂⁻ with R̂ (qkf.core.kalman.update_sized, inlined with
+        # n = 15 a constant):  S = H P̂⁻ Hᵀ + R̂,  K = P̂⁻ Hᵀ S⁻¹,  δx̂⁽ⁱ⁺¹⁾ = K ν,
+        #   P = (I − K H) P̂⁻ (I − K H)ᵀ + K R̂ Kᵀ  (multiplied out), symmetrised
         for i in range(n):
+            dx[i] = 0.0
             for j in range(n):
                 p[i, j] = p_hat[i, j]
-            for c in range(m):
-                kic = kt[c, i]
-                gic = g[c, i]
-                for j in range(n):
-                    p[i, j] += gic * kt[c, j] - kic * ut[c, j]
-        for i in range(n):  # P ← (P + Pᵀ)/2
-            for j in range(i + 1, n):
-                v = 0.5 * (p[i, j] + p[j, i])
-                p[i, j] = v
-                p[j, i] = v
+        ok, _, _ = update_sized(
+            dx, p, nu, h, r, s[:m, :m], (ut, kt, g, hph[:m, :m], s[:m, :m], ws[6, 0, :m]), n, m,
+            False,
+        )  # fmt: skip
+        if not ok:  # S not positive definite (or a NaN)
+            return False, u
     return True, u
 
 
@@ -312,7 +255,7 @@ def vb_rows(
     bsz, m, n = h.shape
     if n != N_STATES or p_nom.shape[1:] != (n, n):
         raise ValueError("vb_rows is compiled for the 15 error states")
-    ws = np.empty((bsz, 6, max(m, us_prev.shape[1] + 1), max(m, n)))
+    ws = np.empty((bsz, 7, max(m, us_prev.shape[1] + 1), max(m, n)))
     for b in nb.prange(bsz):
         _vb_row(
             b, p_nom, nu, h, r_nom, u_prev, us_prev, tau, rho, iterations, adapt_p, adapt_r,
@@ -502,7 +445,7 @@ def vb_epoch(
     rw = np.empty((bsz, m, m))
     vw = np.empty((bsz, 3, n))
     pw = np.empty((bsz, 2, n, n))
-    ws = np.empty((bsz, 8, max(m, 4), n))
+    ws = np.empty((bsz, 9, max(m, 4), n))
     for b in nb.prange(bsz):
         _epoch_trial(
             b, k, p_nom, q_hat, b_hat, p_cal, inactive, gyro, ads_q, ads_rate, d, e, model,
@@ -545,7 +488,7 @@ def vb_epoch_serial(
     rw = np.empty((bsz, m, m))
     vw = np.empty((bsz, 3, n))
     pw = np.empty((bsz, 2, n, n))
-    ws = np.empty((bsz, 8, max(m, 4), n))
+    ws = np.empty((bsz, 9, max(m, 4), n))
     for b in range(bsz):
         _epoch_trial(
             b, k, p_nom, q_hat, b_hat, p_cal, inactive, gyro, ads_q, ads_rate, d, e, model,
