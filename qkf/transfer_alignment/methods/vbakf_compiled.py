@@ -385,6 +385,26 @@ def _epoch_trial(
         kappa_out[b, i] = min(max(kap, k_min), k_max) if np.isfinite(kap) else 1.0
 
 
+@kernel_jit(nrt=True)
+def _epoch_workspace(
+    p_nom: np.ndarray, d: np.ndarray, e: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The per-trial scratch of :func:`vb_epoch` and :func:`vb_epoch_serial` (H̃, R̃, vectors,
+    two n × n matrices, the iteration's workspace), after checking the shapes."""
+    bsz = p_nom.shape[0]
+    m = e.shape[0]
+    n = N_STATES
+    if p_nom.shape[1:] != (n, n) or d.shape[0] != n or m not in (3, 6):
+        raise ValueError("vb_epoch: P̃⁻ must be (B, 15, 15), d (15,), e (3,) or (6,)")
+    return (
+        np.empty((bsz, m, n)),
+        np.empty((bsz, m, m)),
+        np.empty((bsz, 3, n)),
+        np.empty((bsz, 2, n, n)),
+        np.empty((bsz, 9, max(m, 4), n)),
+    )
+
+
 @nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
 def vb_epoch(
     k: int,
@@ -436,17 +456,8 @@ def vb_epoch(
     rad/s, σ_v rad/√s); ``settings`` = (τ, ρ, κ_min, κ_max, N); ``flags`` = (adapt_p, adapt_r);
     ``gyro``, ``ads_q``, ``ads_rate`` the whole (B, N_epochs, ·) records.
     """
-    bsz = p_nom.shape[0]
-    m = e.shape[0]
-    n = N_STATES
-    if p_nom.shape[1:] != (n, n) or d.shape[0] != n or m not in (3, 6):
-        raise ValueError("vb_epoch: P̃⁻ must be (B, 15, 15), d (15,), e (3,) or (6,)")
-    hw = np.empty((bsz, m, n))
-    rw = np.empty((bsz, m, m))
-    vw = np.empty((bsz, 3, n))
-    pw = np.empty((bsz, 2, n, n))
-    ws = np.empty((bsz, 9, max(m, 4), n))
-    for b in nb.prange(bsz):
+    hw, rw, vw, pw, ws = _epoch_workspace(p_nom, d, e)
+    for b in nb.prange(p_nom.shape[0]):
         _epoch_trial(
             b, k, p_nom, q_hat, b_hat, p_cal, inactive, gyro, ads_q, ads_rate, d, e, model,
             settings, flags, q_step, u, us, sigma_a, p_out, kappa_out, bad, hw, rw, vw, pw, ws,
@@ -479,17 +490,8 @@ def vb_epoch_serial(
 ) -> None:
     """:func:`vb_epoch` with the trials one after the other in the calling thread (the same
     per-trial code, so the same numbers bit for bit): for batches below :data:`SERIAL_BELOW`."""
-    bsz = p_nom.shape[0]
-    m = e.shape[0]
-    n = N_STATES
-    if p_nom.shape[1:] != (n, n) or d.shape[0] != n or m not in (3, 6):
-        raise ValueError("vb_epoch: P̃⁻ must be (B, 15, 15), d (15,), e (3,) or (6,)")
-    hw = np.empty((bsz, m, n))
-    rw = np.empty((bsz, m, m))
-    vw = np.empty((bsz, 3, n))
-    pw = np.empty((bsz, 2, n, n))
-    ws = np.empty((bsz, 9, max(m, 4), n))
-    for b in range(bsz):
+    hw, rw, vw, pw, ws = _epoch_workspace(p_nom, d, e)
+    for b in range(p_nom.shape[0]):
         _epoch_trial(
             b, k, p_nom, q_hat, b_hat, p_cal, inactive, gyro, ads_q, ads_rate, d, e, model,
             settings, flags, q_step, u, us, sigma_a, p_out, kappa_out, bad, hw, rw, vw, pw, ws,
