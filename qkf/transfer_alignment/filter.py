@@ -84,9 +84,6 @@ class FilterRecord:
         return np.where(np.isfinite(self.est).all(axis=-1), ll, -np.inf)
 
 
-_NO_RECORD = np.empty(0)  # placeholder of the NIS fields until the kernel's stats are split
-
-
 class TransferAlignmentKF:
     """The 15-state transfer-alignment filter for ``n_trials`` independent trials at once.
 
@@ -113,6 +110,7 @@ class TransferAlignmentKF:
         self.sigma_a = np.full(n_trials, params.sigma_a)
         """Attitude measurement sigma (rad) the filter assumes, per trial; adaptive-R methods
         change it between calls."""
+        self._constants: tuple[FilterParams, _ta_kernel.Constants] | None = None  # see step
 
     def initialize(self, ads_q0: np.ndarray) -> None:
         """Start from ``Ĉ_0`` = first ADS attitude (B, 4), ``b̂ = 0``, ``p̂ = 0``, ``P = P_0``."""
@@ -159,9 +157,8 @@ class TransferAlignmentKF:
     def _kernel_constants(self) -> _ta_kernel.Constants:
         """The kernel's constants of :attr:`params`, built once per parameter set."""
         p = self.params
-        cached = self.__dict__.get("_constants")
-        if cached is not None and cached[0] is p:
-            return cached[1]
+        if self._constants is not None and self._constants[0] is p:
+            return self._constants[1]
         constants = _ta_kernel.Constants(
             dt=float(p.dt),
             sigma_v=float(p.sigma_v),
@@ -201,23 +198,19 @@ class TransferAlignmentKF:
         if has_meas.shape != (b, n) or not has_meas.flags.c_contiguous:
             has_meas = np.ascontiguousarray(np.broadcast_to(has_meas, (b, n)))
         kap = expand_kappa(kappa, b, n)
-        rec = FilterRecord(
+        cov = np.empty((b, n if record_cov else 0, 15, 15))  # axis 1 empty: not recorded
+        rec = _ta_kernel.Records(
             est=np.empty((b, n, 16)),
             var=np.empty((b, n, 15)),
-            cov=np.empty((b, n, 15, 15)) if record_cov else None,
+            cov=cov,
             dx=np.empty((b, n, 15)),
             innov=np.empty((b, n, 6)),
-            nis_att=_NO_RECORD,
-            nis_rate=_NO_RECORD,
-            nis=_NO_RECORD,
-            logdet_s=_NO_RECORD,
-            trace_s_att=_NO_RECORD,
+            stats=np.empty((b, n, 5)),
             rate=np.empty((b, n, 3)),
         )
-        stats = np.empty((b, n, 5))
         # A single environment's step calls this twice per decision period of ten epochs, so
         # the wrapper is kept to a few microseconds: the constants are built once per
-        # parameter set, the tuples positionally (docs/performance.md).
+        # parameter set (docs/performance.md).
         run = _ta_kernel.run_block if b >= _ta_kernel.SERIAL_BELOW else _ta_kernel.run_block_serial
         run(
             _ta_kernel.FilterState(self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged),
@@ -225,20 +218,22 @@ class TransferAlignmentKF:
                 gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float)
             ),
             self._kernel_constants(),
-            _ta_kernel.Records(
-                rec.est,
-                rec.var,
-                rec.cov if rec.cov is not None else np.empty((b, 0, 15, 15)),
-                rec.dx,
-                rec.innov,
-                stats,
-                rec.rate,
-            ),
+            rec,
         )
-        rec.nis_att, rec.nis_rate, rec.nis, rec.logdet_s, rec.trace_s_att = (
-            stats[..., i] for i in range(5)
+        stats = rec.stats
+        return FilterRecord(
+            est=rec.est,
+            var=rec.var,
+            cov=cov if record_cov else None,
+            dx=rec.dx,
+            innov=rec.innov,
+            nis_att=stats[..., 0],
+            nis_rate=stats[..., 1],
+            nis=stats[..., 2],
+            logdet_s=stats[..., 3],
+            trace_s_att=stats[..., 4],
+            rate=rec.rate,
         )
-        return rec
 
     def step_data(
         self,
