@@ -35,3 +35,14 @@ def test_single_and_batched_trajectories_agree(observation: str, reward: str) ->
         np.testing.assert_array_equal(rew_v, np.array([o[1] for o in outs]))
         assert list(trunc_v) == [o[3] for o in outs] and list(term_v) == [o[2] for o in outs]
     assert all(o[3] for o in outs)  # the episodes ran to their end
+    # the next step restarts every episode together (one batch of reference filters for all,
+    # reset_envs); each single environment restarts on its own: the same new episodes
+    obs_v, rew_v, _, _, _ = vec.step(rng.integers(0, 11, n))
+    np.testing.assert_array_equal(obs_v, np.stack([env.reset()[0] for env in singles]))
+    np.testing.assert_array_equal(rew_v, np.zeros(n))
+    for _ in range(3):
+        actions = rng.integers(0, 11, n)
+        obs_v, rew_v, _, _, _ = vec.step(actions)
+        outs = [env.step(int(a)) for env, a in zip(singles, actions, strict=True)]
+        np.testing.assert_array_equal(obs_v, np.stack([o[0] for o in outs]))
+        np.testing.assert_array_equal(rew_v, np.array([o[1] for o in outs]))
