@@ -112,6 +112,17 @@ class BatchedEpisodes:
         self.file_index = np.zeros(n, dtype=np.int64)  # recorded data: each episode's file
         self.kappa_pos = np.zeros(n)
         self.settled = window_masks(self.t, cfg.run.settled_s)["settled"]
+        self._settled_epochs = max(int(self.settled.sum()), 1)
+        # What a period that lies whole inside every episode reads, built once (a single
+        # environment's step is a few hundred microseconds, and each small numpy call in it
+        # costs one or two: docs/performance.md). Read-only: every step hands out the same
+        # arrays. The bound and the settled window are views repeated over the episodes.
+        self._rows = _read_only(np.arange(n))
+        self._whole_valid = _read_only(np.ones((n, self.period), dtype=bool))
+        self._whole_last = _read_only(np.full(n, self.period - 1))
+        self._whole_steps = _read_only(np.full(n, self.period))
+        self._bound_rows = np.broadcast_to(self.bound, (n, *self.bound.shape))
+        self._settled_rows = np.broadcast_to(self.settled, (n, self.settled.size))
         self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
         self.kf = TransferAlignmentKF(self.params, n)
         self.nominal = TransferAlignmentKF(self.params, n) if self.needs_likelihood else None
@@ -212,9 +223,7 @@ class BatchedEpisodes:
         # Episodes are synchronous in length; a period that would run past the end is cut by
         # masking its extra epochs out as measurement-free repeats of the last one.
         if isinstance(where, slice):  # the whole period inside every episode
-            valid = np.ones((self.n, self.period), dtype=bool)
-            last = np.full(self.n, self.period - 1)
-            steps = np.full(self.n, self.period)
+            valid, last, steps = self._whole_valid, self._whole_last, self._whole_steps
         else:
             valid = (k0[:, None] + np.arange(self.period)[None, :]) < self.n_epochs
             last = np.maximum(valid.sum(axis=1) - 1, 0)
@@ -228,7 +237,7 @@ class BatchedEpisodes:
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
-        rows = np.arange(self.n)
+        rows = self._rows
         at = np.minimum(k0 + last, self.n_epochs - 1)  # the period's last valid epoch
         if self.reward.uses_truth:  # the errors over the whole period
             truth = (
@@ -258,8 +267,7 @@ class BatchedEpisodes:
             with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
                 dll = ll - ll_nom
         if isinstance(where, slice):  # the bound and window of the epochs, per episode
-            bound = np.broadcast_to(self.bound[where], (self.n, self.period, 15))
-            settled = np.broadcast_to(self.settled[where], (self.n, self.period))
+            bound, settled = self._bound_rows[:, where], self._settled_rows[:, where]
         else:
             bound, settled = self.bound[where], self.settled[where] & valid
         outcome = PeriodOutcome(
@@ -272,7 +280,7 @@ class BatchedEpisodes:
             dt=self.cfg.scenario.dt_s,
             reference_errors=ref_err,
             settled=settled,
-            settled_epochs=max(int(self.settled.sum()), 1),
+            settled_epochs=self._settled_epochs,
             weights=self.weights,
             reference_ms=self.reference_ms,
         )
@@ -368,3 +376,9 @@ class EpisodeDriver:
         """Map one action per episode to κ and run one decision period in all of them."""
         mapped = [self.actions(a) for a in actions]
         return self.core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))
+
+
+def _read_only(arr: np.ndarray) -> np.ndarray:
+    """``arr``, marked read-only (it is shared by every step that hands it out)."""
+    arr.flags.writeable = False
+    return arr

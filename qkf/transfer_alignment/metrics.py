@@ -7,6 +7,7 @@ Error convention as the filter's (docs/models.md): ``δθ = Log(Ĉᵀ C_true)``,
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from qkf.core.quat import relative_rotvecs
@@ -19,20 +20,39 @@ def state_errors(
     """True estimation errors (B, n, 15), SI.
 
     ``est`` (B, n, 16) = [q̂, b̂, p̂]; ``q_true`` (n, 4) or (B, n, 4); ``bias`` (B, n, 3);
-    ``calib`` (B, n, 9).
+    ``calib`` (B, n, 9). The attitude error is NaN where either quaternion is not finite (a
+    diverged estimate, or no truth in recorded data).
     """
     b, n = est.shape[:2]
-    q_hat = np.ascontiguousarray(est[..., 0:4]).reshape(-1, 4)
-    q_t = np.ascontiguousarray(np.broadcast_to(q_true, (b, n, 4))).reshape(-1, 4)
+    if q_true.ndim == 2:
+        q_true = np.broadcast_to(q_true, (b, n, 4))
+    for name, arr, width in (("est", est, 16), ("q_true", q_true, 4), ("bias", bias, 3),
+                             ("calib", calib, 9)):  # fmt: skip
+        if arr.shape != (b, n, width):
+            raise ValueError(f"{name} has shape {arr.shape}, expected ({b}, {n}, {width})")
     err = np.empty((b, n, N_STATES))
-    # δθ = Log(Ĉᵀ C) = Log(q̂* ⊗ q) of the normalised quaternions, compiled; NaN where either
-    # side is not finite: a diverged estimate, or no truth (recorded data)
-    att = np.empty((b * n, 3))
-    relative_rotvecs(q_hat, q_t, att)
-    err[..., 0:3] = att.reshape(b, n, 3)
-    err[..., 3:6] = bias - est[..., 4:7]
-    err[..., 6:15] = calib - est[..., 7:16]
+    _state_errors_into(est, q_true, bias, calib, err)
     return err
+
+
+@nb.njit(cache=True)
+def _state_errors_into(
+    est: np.ndarray, q_true: np.ndarray, bias: np.ndarray, calib: np.ndarray, err: np.ndarray
+) -> None:
+    """:func:`state_errors` into ``err``, compiled: ``δθ = Log(q̂* ⊗ q)`` of the normalised
+    quaternions (:func:`~qkf.core.quat.relative_rotvecs`), ``Δb = b − b̂``, ``Δp = p − p̂``.
+
+    One call instead of a dozen numpy ones: for a single environment's decision period they
+    cost more than the arithmetic (docs/performance.md). Compiled without fast-math, as the
+    rotation core, so the numbers are those of the numpy expressions.
+    """
+    for i in range(est.shape[0]):
+        relative_rotvecs(est[i, :, 0:4], q_true[i], err[i, :, 0:3])
+        for k in range(est.shape[1]):
+            for j in range(3):
+                err[i, k, 3 + j] = bias[i, k, j] - est[i, k, 4 + j]
+            for j in range(9):
+                err[i, k, 6 + j] = calib[i, k, j] - est[i, k, 7 + j]
 
 
 def group_rms(ms_per_state: np.ndarray) -> dict[str, np.ndarray]:
