@@ -143,3 +143,28 @@ def test_non_finite_input_flags_divergence_and_freezes_the_trial() -> None:
     alone.initialize(data.ads_q[1:2, 0])
     rec1 = alone.step(data.gyro[1:2], data.ads_q[1:2], data.ads_rate[1:2], data.has_meas)
     np.testing.assert_array_equal(rec1.est[0], rec.est[1])
+
+
+def test_loglik_from_the_records() -> None:
+    """ℓ = −½ (νᵀS⁻¹ν + log det S) where there was an update, 0 where there was none, −inf where
+    an estimate is not finite, from records written by hand."""
+    from qkf.transfer_alignment.filter import FilterRecord
+
+    rng = np.random.default_rng(4)
+    b, n = 2, 6
+    stats = rng.normal(size=(b, n, 5))  # the kernel's layout: column 2 NIS, column 3 log det S
+    stats[0, 1, 2] = np.nan  # no measurement
+    est = rng.normal(size=(b, n, 16))
+    est[1, 4, 9] = np.inf  # diverged
+    est[1, 5, 0] = np.nan  # diverged, and no measurement either
+    stats[1, 5, 2] = np.nan
+    empty = np.empty((b, n, 15))
+    rec = FilterRecord(
+        est=est, var=empty, cov=None, dx=empty, innov=np.empty((b, n, 6)),
+        nis_att=stats[..., 0], nis_rate=stats[..., 1], nis=stats[..., 2],
+        logdet_s=stats[..., 3], trace_s_att=stats[..., 4], rate=np.empty((b, n, 3)),
+    )  # fmt: skip
+    expected = -0.5 * (stats[..., 2] + stats[..., 3])
+    expected[0, 1] = 0.0
+    expected[1, 4] = expected[1, 5] = -np.inf
+    np.testing.assert_array_equal(rec.loglik, expected)

@@ -262,8 +262,10 @@ class BatchedEpisodes:
         dll = None
         if self.nominal is not None:
             rec_nom = self.nominal.step(gyro, ads_q, ads_rate, meas, 1.0)
-            ll = np.where(valid, rec.loglik, 0.0).sum(axis=1)
-            ll_nom = np.where(valid, rec_nom.loglik, 0.0).sum(axis=1)
+            ll, ll_nom = rec.loglik, rec_nom.loglik
+            if not isinstance(where, slice):  # epochs past the end count nothing
+                ll, ll_nom = np.where(valid, ll, 0.0), np.where(valid, ll_nom, 0.0)
+            ll, ll_nom = ll.sum(axis=1), ll_nom.sum(axis=1)
             with np.errstate(invalid="ignore"):  # −inf − (−inf) once diverged: replaced below
                 dll = ll - ll_nom
         if isinstance(where, slice):  # the bound and window of the epochs, per episode

@@ -37,6 +37,7 @@ import copy
 from dataclasses import dataclass
 from typing import Protocol
 
+import numba as nb
 import numpy as np
 
 from qkf.transfer_alignment import kernel as _ta_kernel
@@ -79,9 +80,27 @@ class FilterRecord:
 
         0 at epochs without a measurement; −inf once the trial has diverged.
         """
-        ll = -0.5 * (self.nis + self.logdet_s)
-        ll = np.where(np.isnan(self.nis), 0.0, ll)
-        return np.where(np.isfinite(self.est).all(axis=-1), ll, -np.inf)
+        out = np.empty(self.nis.shape)
+        _loglik_into(self.nis, self.logdet_s, self.est, out)
+        return out
+
+
+@nb.njit(cache=True)
+def _loglik_into(nis: np.ndarray, logdet: np.ndarray, est: np.ndarray, out: np.ndarray) -> None:
+    """:attr:`FilterRecord.loglik` into ``out`` (B, n): one compiled call instead of seven
+    numpy ones, for the single environment's two records per step (docs/performance.md).
+    Without fast-math: the numbers of ``−0.5 * (nis + logdet)`` in numpy."""
+    for i in range(nis.shape[0]):
+        for k in range(nis.shape[1]):
+            finite = True
+            for j in range(est.shape[2]):
+                finite = finite and np.isfinite(est[i, k, j])
+            if not finite:  # diverged
+                out[i, k] = -np.inf
+            elif np.isnan(nis[i, k]):  # no measurement
+                out[i, k] = 0.0
+            else:
+                out[i, k] = -0.5 * (nis[i, k] + logdet[i, k])
 
 
 class TransferAlignmentKF:
@@ -110,7 +129,7 @@ class TransferAlignmentKF:
         self.sigma_a = np.full(n_trials, params.sigma_a)
         """Attitude measurement sigma (rad) the filter assumes, per trial; adaptive-R methods
         change it between calls."""
-        self._constants: tuple[FilterParams, _ta_kernel.Constants] | None = None  # see step
+        self._constants: tuple[FilterParams, _ta_kernel.ConstantsTuple] | None = None  # see step
 
     def initialize(self, ads_q0: np.ndarray) -> None:
         """Start from ``Ĉ_0`` = first ADS attitude (B, 4), ``b̂ = 0``, ``p̂ = 0``, ``P = P_0``."""
@@ -154,22 +173,24 @@ class TransferAlignmentKF:
             raise ValueError("filters of different batch sizes")
         self.load_trial(slice(None), other, slice(None))
 
-    def _kernel_constants(self) -> _ta_kernel.Constants:
-        """The kernel's constants of :attr:`params`, built once per parameter set."""
+    def _kernel_constants(self) -> _ta_kernel.ConstantsTuple:
+        """The kernel's constants of :attr:`params`, the fields of
+        :class:`~qkf.transfer_alignment.kernel.Constants` as a plain tuple, built once per
+        parameter set."""
         p = self.params
         if self._constants is not None and self._constants[0] is p:
             return self._constants[1]
-        constants = _ta_kernel.Constants(
-            dt=float(p.dt),
-            sigma_v=float(p.sigma_v),
-            sigma_u=float(p.sigma_u),
-            qp0=float(p.qp0),
-            sigma_r=float(p.sigma_r),
-            use_rate=bool(p.use_rate),
-            correlated=bool(p.rate_noise_correlation),
-            d=self._d,
-            gl_s=self._gl_s,
-            gl_w=self._gl_w,
+        constants = (
+            float(p.dt),
+            float(p.sigma_v),
+            float(p.sigma_u),
+            float(p.qp0),
+            float(p.sigma_r),
+            bool(p.use_rate),
+            bool(p.rate_noise_correlation),
+            self._d,
+            self._gl_s,
+            self._gl_w,
         )
         self._constants = (p, constants)
         return constants
@@ -198,41 +219,43 @@ class TransferAlignmentKF:
         if has_meas.shape != (b, n) or not has_meas.flags.c_contiguous:
             has_meas = np.ascontiguousarray(np.broadcast_to(has_meas, (b, n)))
         kap = expand_kappa(kappa, b, n)
-        cov = np.empty((b, n if record_cov else 0, 15, 15))  # axis 1 empty: not recorded
-        rec = _ta_kernel.Records(
-            est=np.empty((b, n, 16)),
-            var=np.empty((b, n, 15)),
-            cov=cov,
-            dx=np.empty((b, n, 15)),
-            innov=np.empty((b, n, 6)),
-            stats=np.empty((b, n, 5)),
-            rate=np.empty((b, n, 3)),
+        # the fields of kernel.Records, in order; axis 1 of cov empty: not recorded
+        rec = (
+            np.empty((b, n, 16)),  # est
+            np.empty((b, n, 15)),  # var
+            np.empty((b, n if record_cov else 0, 15, 15)),  # cov
+            np.empty((b, n, 15)),  # dx
+            np.empty((b, n, 6)),  # innov
+            np.empty((b, n, 5)),  # stats
+            np.empty((b, n, 3)),  # rate
         )
+        state = (self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged)
+        inputs = (gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float))
         # A single environment's step calls this twice per decision period of ten epochs, so
         # the wrapper is kept to a few microseconds: the constants are built once per
-        # parameter set (docs/performance.md).
-        run = _ta_kernel.run_block if b >= _ta_kernel.SERIAL_BELOW else _ta_kernel.run_block_serial
-        run(
-            _ta_kernel.FilterState(self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged),
-            _ta_kernel.Inputs(
-                gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float)
-            ),
-            self._kernel_constants(),
-            rec,
-        )
-        stats = rec.stats
+        # parameter set, and the serial kernel takes plain tuples (docs/performance.md).
+        if b >= _ta_kernel.SERIAL_BELOW:
+            _ta_kernel.run_block(
+                _ta_kernel.FilterState(*state),
+                _ta_kernel.Inputs(*inputs),
+                _ta_kernel.Constants(*self._kernel_constants()),
+                _ta_kernel.Records(*rec),
+            )
+        else:
+            _ta_kernel.run_block_serial(state, inputs, self._kernel_constants(), rec)
+        est, var, cov, dx, innov, stats, rate = rec
         return FilterRecord(
-            est=rec.est,
-            var=rec.var,
+            est=est,
+            var=var,
             cov=cov if record_cov else None,
-            dx=rec.dx,
-            innov=rec.innov,
+            dx=dx,
+            innov=innov,
             nis_att=stats[..., 0],
             nis_rate=stats[..., 1],
             nis=stats[..., 2],
             logdet_s=stats[..., 3],
             trace_s_att=stats[..., 4],
-            rate=rec.rate,
+            rate=rate,
         )
 
     def step_data(

@@ -119,6 +119,20 @@ class Records(NamedTuple):
     rate: np.ndarray  # (B, n, 3): ω̂ used for propagation, rad/s
 
 
+StateTuple = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The fields of :class:`FilterState` as a plain tuple (:func:`run_block_serial`)."""
+InputsTuple = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The fields of :class:`Inputs` as a plain tuple."""
+ConstantsTuple = tuple[
+    float, float, float, float, float, bool, bool, np.ndarray, np.ndarray, np.ndarray
+]
+"""The fields of :class:`Constants` as a plain tuple."""
+RecordsTuple = tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]
+"""The fields of :class:`Records` as a plain tuple."""
+
+
 class _Scales(NamedTuple):
     """Factors between SI and the scaled units, computed once per trial (see the module doc)."""
 
@@ -800,8 +814,18 @@ every call, and wait for cores whenever other processes hold them (docs/performa
 
 
 @nb.njit(cache=True, fastmath=FASTMATH)
-def run_block_serial(state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
+def run_block_serial(
+    state: StateTuple, inputs: InputsTuple, c: ConstantsTuple, rec: RecordsTuple
+) -> None:
     """:func:`run_block` with the trials one after the other in the calling thread (the same
-    per-trial code, so the same numbers bit for bit)."""
-    for bi in range(state.q_hat.shape[0]):
-        _run_trial(bi, state, inputs, c, rec)
+    per-trial code, so the same numbers bit for bit).
+
+    The four groups may be plain tuples in the order of the named tuples' fields
+    (:class:`FilterState`, :class:`Inputs`, :class:`Constants`, :class:`Records`): numba types
+    a named-tuple argument in Python on every call but a plain tuple from a cached
+    fingerprint, which saves about 3 µs of a call that a single environment makes twice per
+    step (docs/performance.md).
+    """
+    st, inp, con, out = FilterState(*state), Inputs(*inputs), Constants(*c), Records(*rec)
+    for bi in range(st.q_hat.shape[0]):
+        _run_trial(bi, st, inp, con, out)

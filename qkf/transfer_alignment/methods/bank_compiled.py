@@ -975,7 +975,7 @@ def run_bank(
     run_bank_trials(
         _ta_kernel.FilterState(bank.q_hat, bank.b_hat, bank.p_hat, bank._pt, bank.diverged),
         inputs,
-        bank._kernel_constants(),  # the constants TransferAlignmentKF.step hands the kernel
+        _ta_kernel.Constants(*bank._kernel_constants()),  # those TransferAlignmentKF.step uses
         _records(rows, False),
         _records(rows, True),
         data,
