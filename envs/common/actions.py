@@ -33,17 +33,10 @@ class ActionMap:
     def __call__(self, action: Any) -> tuple[float, float]:
         """κ and its position in [0, 1] on the action scale."""
         if self.action_type == "discrete":
-            a = np.asarray(action)
-            v = a.reshape(-1)[0] if a.size == 1 else None
-            integral = v is not None and (
-                np.issubdtype(a.dtype, np.integer)
-                or (
-                    np.issubdtype(a.dtype, np.floating) and np.isfinite(v) and float(v).is_integer()
-                )
-            )
-            if not integral:
-                raise ValueError(f"discrete action must be an integer index, got {action!r}")
-            i = int(v)  # type: ignore[arg-type]
+            if isinstance(action, int | np.integer) and not isinstance(action, bool):
+                i = int(action)  # the common case, without the array checks below
+            else:
+                i = self._integral_index(action)
             if not 0 <= i < self.kappas.size:
                 raise ValueError(f"action {i} outside 0..{self.kappas.size - 1}")
             return float(self.kappas[i]), i / (self.kappas.size - 1)
@@ -55,3 +48,17 @@ class ActionMap:
         u = (float(np.clip(a[0], -1.0, 1.0)) + 1.0) / 2.0
         lo, hi = self.log_kappa[0], self.log_kappa[-1]
         return float(10.0 ** (lo + u * (hi - lo))), u
+
+    @staticmethod
+    def _integral_index(action: Any) -> int:
+        """A discrete action given as an array or a float: its integer value, or
+        ``ValueError``."""
+        a = np.asarray(action)
+        v = a.reshape(-1)[0] if a.size == 1 else None
+        integral = v is not None and (
+            np.issubdtype(a.dtype, np.integer)
+            or (np.issubdtype(a.dtype, np.floating) and np.isfinite(v) and float(v).is_integer())
+        )
+        if not integral:
+            raise ValueError(f"discrete action must be an integer index, got {action!r}")
+        return int(v)  # type: ignore[arg-type]

@@ -121,6 +121,7 @@ class BatchedEpisodes:
         self._whole_valid = _read_only(np.ones((n, self.period), dtype=bool))
         self._whole_last = _read_only(np.full(n, self.period - 1))
         self._whole_steps = _read_only(np.full(n, self.period))
+        self._no_errors = _read_only(np.full((n, self.period, 15), np.nan))
         self._bound_rows = np.broadcast_to(self.bound, (n, *self.bound.shape))
         self._settled_rows = np.broadcast_to(self.settled, (n, self.settled.size))
         self.nominal_kappa = float(self.kappas[cfg.adaptive.actions.nominal_index()])
@@ -248,13 +249,14 @@ class BatchedEpisodes:
             err = state_errors(rec.est, *truth)
             err_last = err[rows, last]
         else:  # only info's errors at the period's last epoch; the reward does not see them
-            err_last = state_errors(
-                rec.est[rows, last][:, None],
-                self.q_true[rows, at][:, None],
-                self.bias[rows, at][:, None],
-                self.calib[rows, at][:, None],
-            )[:, 0]
-            err = np.full((self.n, self.period, 15), np.nan)
+            truth = (self.q_true, self.bias, self.calib)
+            if isinstance(where, slice):  # that epoch is the same in every episode: views
+                a, j = where.stop - 1, self.period - 1
+                one = (rec.est[:, j : j + 1], *(x[:, a : a + 1] for x in truth))
+            else:
+                one = (rec.est[rows, last][:, None], *(x[rows, at][:, None] for x in truth))
+            err_last = state_errors(*one)[:, 0]
+            err = self._no_errors
         ref_err = None
         if self.reference_errors is not None:
             ref_err = self._window(self.reference_errors, where)
