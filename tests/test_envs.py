@@ -100,12 +100,21 @@ def test_vector_env_equals_single_envs_step_for_step() -> None:
         np.testing.assert_array_equal(tr, [x[3] for x in ref])
 
 
-@pytest.mark.parametrize("bad", [np.nan, 11, -1, 2.5, "x"])
+@pytest.mark.parametrize("bad", [np.nan, 11, -1, 2.5, "x", True, np.int64(11), np.array([1, 2])])
 def test_invalid_discrete_action_raises(bad: object) -> None:
     env = TransferAlignmentEnv(overrides=SHORT)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(bad)
+
+
+def test_discrete_action_forms_agree() -> None:
+    """An index as a Python int, a numpy integer, a 0-d or 1-element array or an integral float
+    selects the same κ."""
+    env = TransferAlignmentEnv(overrides=SHORT)
+    env.reset(seed=0)
+    kappas = [env.step(a)[4]["kappa"] for a in (3, np.int64(3), np.array(3), np.array([3]), 3.0)]
+    assert kappas == [float(env.actions.kappas[3])] * 5
 
 
 @pytest.mark.parametrize("bad", [np.array([np.nan]), np.array([1.5]), np.array([0.1, 0.2])])
