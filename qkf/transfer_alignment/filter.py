@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, cast
 
 import numba as nb
 import numpy as np
@@ -180,18 +180,19 @@ class TransferAlignmentKF:
         p = self.params
         if self._constants is not None and self._constants[0] is p:
             return self._constants[1]
-        constants = (
-            float(p.dt),
-            float(p.sigma_v),
-            float(p.sigma_u),
-            float(p.qp0),
-            float(p.sigma_r),
-            bool(p.use_rate),
-            bool(p.rate_noise_correlation),
-            self._d,
-            self._gl_s,
-            self._gl_w,
+        named = _ta_kernel.Constants(
+            dt=float(p.dt),
+            sigma_v=float(p.sigma_v),
+            sigma_u=float(p.sigma_u),
+            qp0=float(p.qp0),
+            sigma_r=float(p.sigma_r),
+            use_rate=bool(p.use_rate),
+            correlated=bool(p.rate_noise_correlation),
+            d=self._d,
+            gl_s=self._gl_s,
+            gl_w=self._gl_w,
         )
+        constants = cast(_ta_kernel.ConstantsTuple, tuple(named))
         self._constants = (p, constants)
         return constants
 
