@@ -6,6 +6,13 @@ the Monte Carlo runner, IO, plots); each problem has its own package beside it
 """
 
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from qkf.core.numba_cache import discard_stale_caches
+
+# Before any compiled function is called: numba's cached code of one module can hold a stale
+# copy of another's (qkf.core.numba_cache).
+discard_stale_caches(Path(__file__).resolve().parent)
 
 try:
     __version__ = version("qkf")
