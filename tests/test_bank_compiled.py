@@ -117,7 +117,9 @@ def test_compiled_mixing_is_mix_bank(switching: str) -> None:
     np.testing.assert_array_equal(cmp.diverged, ref.diverged)
     assert not cmp.diverged[: 2 * n_act].any()  # the live trials restarted every model
     mixed = slice(0, 2 * n_act)
-    np.testing.assert_allclose(cmp.q_hat[mixed], ref.q_hat[mixed], rtol=0, atol=2e-16)
+    # unit quaternions: a few units in the last place (the compiled mixing's last bits depend
+    # on how numba compiled it, fresh or from its cache; docs/performance.md)
+    np.testing.assert_allclose(cmp.q_hat[mixed], ref.q_hat[mixed], rtol=0, atol=1e-15)
     np.testing.assert_allclose(cmp.b_hat[mixed], ref.b_hat[mixed], rtol=1e-13, atol=1e-22)
     np.testing.assert_allclose(cmp.p_hat[mixed], ref.p_hat[mixed], rtol=1e-13, atol=1e-19)
     d = bank.params.p0_sigma
@@ -278,7 +280,7 @@ def test_the_banks_filter_is_the_kernel_bit_for_bit() -> None:
     n_act = kappas.size
     bank = new_filter(cfg, data, n_copies=n_act)
     rec = CovarianceRecorder(cfg, 2)
-    run_bank(bank, data.gyro, data.ads_q, data.ads_rate, data.has_meas, kappas, rec.epochs, rec.cov)
+    run_bank(bank, data, kappas, rec.epochs, rec.cov)
     alone = new_filter(cfg, data, n_copies=n_act)
     alone.step(
         np.repeat(data.gyro, n_act, axis=0),

@@ -63,7 +63,7 @@ import numpy as np
 from qkf.core.jit import FASTMATH, kernel_jit
 from qkf.core.quat import quat_mul_exp, relative_rotvec
 from qkf.transfer_alignment import kernel as _ta_kernel
-from qkf.transfer_alignment.filter import TransferAlignmentKF
+from qkf.transfer_alignment.filter import SensorData, TransferAlignmentKF
 from qkf.transfer_alignment.model_compiled import a_omega, rate_estimate
 
 UNIT_Q_ORDER = 4
@@ -898,10 +898,7 @@ class BankRun:
 
 def run_bank(
     bank: TransferAlignmentKF,
-    gyro: np.ndarray,
-    ads_q: np.ndarray,
-    ads_rate: np.ndarray,
-    has_meas: np.ndarray,
+    sensors: SensorData,
     kappas: np.ndarray,
     cov_epochs: np.ndarray,
     cov_out: np.ndarray,
@@ -911,8 +908,9 @@ def run_bank(
     mix_every: int = 1,
 ) -> BankRun:
     """Run the bank ``bank`` (rows ``trial · A + model``, model ``j`` with ``κ = kappas[j]``) over
-    all epochs of the data (``gyro``, ``ads_rate`` (B, N, 3) rad/s, ``ads_q`` (B, N, 4),
-    ``has_meas`` (N,) or (B, N)) in one compiled call; ``bank`` is left at the end of the run.
+    all epochs of ``sensors`` (``gyro``, ``ads_rate`` (B, N, 3) rad/s, ``ads_q`` (B, N, 4),
+    ``has_meas`` (N,) or (B, N): simulated or recorded data) in one compiled call; ``bank`` is
+    left at the end of the run.
 
     ``trans`` given: IMM with switching matrix ``Π`` and mixing interval ``mix_every``; else
     MMAE with weight floor ``floor``. The mixture covariance at the epochs ``cov_epochs`` (M,)
@@ -920,7 +918,7 @@ def run_bank(
     """
     kappas = np.ascontiguousarray(kappas, dtype=float)
     n_act = kappas.size
-    gyro = np.ascontiguousarray(gyro, dtype=float)
+    gyro = np.ascontiguousarray(sensors.gyro, dtype=float)
     b, n = gyro.shape[:2]
     if bank.n_trials != b * n_act:
         raise ValueError(
@@ -953,9 +951,11 @@ def run_bank(
     )
     data = BankData(
         gyro=gyro,
-        ads_q=np.ascontiguousarray(ads_q, dtype=float),
-        ads_rate=np.ascontiguousarray(ads_rate, dtype=float),
-        has_meas=np.ascontiguousarray(np.broadcast_to(np.asarray(has_meas, dtype=bool), (b, n))),
+        ads_q=np.ascontiguousarray(sensors.ads_q, dtype=float),
+        ads_rate=np.ascontiguousarray(sensors.ads_rate, dtype=float),
+        has_meas=np.ascontiguousarray(
+            np.broadcast_to(np.asarray(sensors.has_meas, dtype=bool), (b, n))
+        ),
     )
     out = BankOutputs(
         est=np.empty((b, n, 16)),

@@ -295,10 +295,7 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmConfig) -> MethodOutput:
     cov = CovarianceRecorder(cfg, data.n_trials)
     run = run_bank(
         bank,
-        data.gyro,
-        data.ads_q,
-        data.ads_rate,
-        data.has_meas,
+        data,
         kappas,
         cov.epochs,
         cov.cov,

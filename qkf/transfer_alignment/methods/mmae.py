@@ -140,10 +140,7 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     cov = CovarianceRecorder(cfg, b)
     run = run_bank(
         bank,
-        data.gyro,
-        data.ads_q,
-        data.ads_rate,
-        data.has_meas,
+        data,
         kappas,
         cov.epochs,
         cov.cov,
