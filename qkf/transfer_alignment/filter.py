@@ -173,6 +173,11 @@ class TransferAlignmentKF:
             raise ValueError("filters of different batch sizes")
         self.load_trial(slice(None), other, slice(None))
 
+    def _kernel_state(self) -> _ta_kernel.StateTuple:
+        """The filter's arrays the kernel updates in place, the fields of
+        :class:`~qkf.transfer_alignment.kernel.FilterState` as a plain tuple."""
+        return (self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged)
+
     def _kernel_constants(self) -> _ta_kernel.ConstantsTuple:
         """The kernel's constants of :attr:`params`, the fields of
         :class:`~qkf.transfer_alignment.kernel.Constants` as a plain tuple, built once per
@@ -230,7 +235,7 @@ class TransferAlignmentKF:
             np.empty((b, n, 5)),  # stats
             np.empty((b, n, 3)),  # rate
         )
-        state = (self.q_hat, self.b_hat, self.p_hat, self._pt, self.diverged)
+        state = self._kernel_state()
         inputs = (gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float))
         # A single environment's step calls this twice per decision period of ten epochs, so
         # the wrapper is kept to a few microseconds: the constants are built once per

@@ -973,7 +973,7 @@ def run_bank(
         sigma_a=np.ascontiguousarray(bank.sigma_a, dtype=float),
     )
     run_bank_trials(
-        _ta_kernel.FilterState(bank.q_hat, bank.b_hat, bank.p_hat, bank._pt, bank.diverged),
+        _ta_kernel.FilterState(*bank._kernel_state()),
         inputs,
         _ta_kernel.Constants(*bank._kernel_constants()),  # those TransferAlignmentKF.step uses
         _records(rows, False),
@@ -1090,7 +1090,7 @@ def mix_bank_compiled(
     trans = np.ascontiguousarray(trans, dtype=float)
     trans_c, trans_r = split_transitions(trans)
     _mix_rows(
-        _ta_kernel.FilterState(kf.q_hat, kf.b_hat, kf.p_hat, kf._pt, kf.diverged),
+        _ta_kernel.FilterState(*kf._kernel_state()),
         np.ascontiguousarray(mu, dtype=float),
         trans,
         trans_c,
