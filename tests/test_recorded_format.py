@@ -127,7 +127,7 @@ def test_small_batches_give_the_same_run(
     monkeypatch.setattr(reader, "MIN_BLOCK_BYTES", 1)
     header = reader._csv_header
     if estimate is not None:
-        monkeypatch.setattr(reader, "_csv_header", lambda p, lim: (*header(p, lim)[:2], estimate))
+        monkeypatch.setattr(reader, "_csv_header", lambda p, lim: (*header(p, lim)[:3], estimate))
     for suffix in (".csv", ".parquet"):
         path = tmp_path / f"r{suffix}"
         write_recorded(path, sim)

@@ -30,6 +30,7 @@ from qkf.core.stats import (
 )
 from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
+from qkf.transfer_alignment.divergence import Divergence, find_divergences
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     BUILTIN_METHODS,
@@ -76,6 +77,7 @@ class MethodResult:
     band: np.ndarray | None = None  # (T, groups, 3): RMS, lo, hi at band_t, display units
     nees: np.ndarray | None = None  # (M,) trial-averaged NEES at nees_t (None: no covariance)
     nees_trials: np.ndarray | None = None  # (M,) trials in each average
+    divergences: list[Divergence] = field(default_factory=list)  # first epoch per trial
 
 
 @dataclass
@@ -152,6 +154,7 @@ class ChunkResult:
     band_ms: dict[str, np.ndarray] = field(default_factory=dict)  # (B, T, groups) display²
     nees_sum: dict[str, np.ndarray | None] = field(default_factory=dict)  # (M,) sums over trials
     nees_count: dict[str, np.ndarray] = field(default_factory=dict)  # (M,) trials summed
+    divergences: dict[str, list[Divergence]] = field(default_factory=dict)
 
 
 def band_epochs(n: int) -> np.ndarray:
@@ -213,6 +216,7 @@ def run_chunk(
             err / DISPLAY_UNIT, data.t, cfg.run.settled_s, weights
         )
         res.diverged[m.name] = int(np.count_nonzero(out.diverged))
+        res.divergences[m.name] = find_divergences(m.name, out, data.t, ids)
         res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
         res.notes[m.name] = dict(out.notes)
         sq = (err[:, banded] / DISPLAY_UNIT) ** 2
@@ -307,6 +311,7 @@ def run_benchmark(
     band_ms: dict[str, list[np.ndarray]] = {m: [] for m in labels}
     nees_sum: dict[str, np.ndarray | None] = dict.fromkeys(labels)
     nees_count = {m: np.zeros(covariance_epochs(cfg).size, np.int64) for m in labels}
+    divergences: dict[str, list[Divergence]] = {m: [] for m in labels}
     chunks = chunk_ids(trials, cfg.run.chunk_trials)
     # in this process the bar moves per method and chunk (a run of <= 64 trials is one chunk);
     # trials that run in other processes report back per chunk only
@@ -344,6 +349,7 @@ def run_benchmark(
                     kappas[m].append(trace)
                 notes[m].update(res.notes[m])
                 band_ms[m].append(res.band_ms[m])
+                divergences[m] += res.divergences[m]
                 part = res.nees_sum[m]
                 if part is not None:
                     prev = nees_sum[m]
@@ -395,6 +401,7 @@ def run_benchmark(
                 band=rms_bands(np.concatenate(band_ms[m]), band_counts, boot.level),
                 nees=nees_avg,
                 nees_trials=nees_count[m],
+                divergences=divergences[m],
             )
         )
     return BenchResult(

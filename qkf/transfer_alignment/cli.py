@@ -3,22 +3,25 @@
 happen inside the commands.
 
 Exit codes as everywhere: 0 success, 2 bad input (config, option: one message naming the file
-and the field; nothing written), 1 anything else.
+and the field; nothing written), 1 anything else; ``bench`` also 3: a method diverged (every
+file is written, and summary.md and the terminal name the method, trial or file, and epoch).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.markup import escape
 
 from qkf.core.cli_support import (
     BackendOption,
     OverwriteOption,
     SetOption,
     backend_options,
+    err,
     fail,
     out,
     out_dir,
@@ -35,6 +38,9 @@ from qkf.transfer_alignment.config import (
     load_config,
     load_scenario,
 )
+
+if TYPE_CHECKING:
+    from qkf.transfer_alignment.divergence import Divergence
 
 app = typer.Typer(add_completion=False, help="Transfer alignment: CRLB, benchmark, studies, plots.")
 
@@ -130,6 +136,14 @@ def bench_cmd(
             "and filter settings. See docs/recorded_data.md.",
         ),
     ] = None,
+    ignore_column: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--ignore-column",
+            help="With --data: an extra column of the files to read past (repeat for several; "
+            "config: recorded.ignore_columns).",
+        ),
+    ] = None,
 ) -> None:
     """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots,
     run.json. --out must be new, empty or (with --overwrite) an earlier bench run, which is
@@ -150,8 +164,12 @@ def bench_cmd(
                 "--data: the files are the trials (no --trials), run in this process "
                 "(no --backend, --workers or --resume)"
             )
-        _bench_recorded(config, set_, methods, seed, data, out_path, quiet, overwrite)
+        _bench_recorded(
+            config, set_, methods, seed, data, out_path, quiet, overwrite, ignore_column or []
+        )
         return
+    if ignore_column:
+        raise fail("--ignore-column is for the files of --data")
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed, run_benchmark
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
@@ -212,6 +230,7 @@ def bench_cmd(
             res = run_benchmark(cfg, named, trials, seed, **bench)  # type: ignore[arg-type]
             write_bench(res, folder)
             show(folder)
+            _exit_if_diverged([d for m in res.methods for d in m.divergences])
             return
         key = cfg.sweep.key
         assert cases is not None
@@ -237,6 +256,7 @@ def _bench_recorded(
     out_path: str,
     quiet: bool,
     overwrite: bool,
+    ignore_columns: list[str],
 ) -> None:
     """``qkf bench CONFIG --data FILE …``: every check (config, methods, data, output folder)
     before any method runs; nothing is written on bad input."""
@@ -245,7 +265,7 @@ def _bench_recorded(
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
     from qkf.transfer_alignment.recorded.grid import load_recorded
     from qkf.transfer_alignment.recorded.outputs import RECORDED_KIND, write_recorded_run
-    from qkf.transfer_alignment.recorded.run import run_recorded
+    from qkf.transfer_alignment.recorded.run import refuse_unjudgeable, run_recorded
 
     cfg = _load(config, sets)
     if cfg.sweep is not None:
@@ -253,6 +273,10 @@ def _bench_recorded(
     seed_option(seed)
     if seed is not None:
         cfg = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": seed})})
+    if ignore_columns:
+        extra = (*cfg.recorded.ignore_columns, *(c.strip() for c in ignore_columns))
+        rc = cfg.recorded.model_copy(update={"ignore_columns": extra})
+        cfg = cfg.model_copy(update={"recorded": rc})
     try:
         named = parse_methods("all" if methods is None else methods)
     except ValueError as exc:
@@ -261,6 +285,7 @@ def _bench_recorded(
         cfg = resolve_method_settings(cfg, named, config)
         refuse_tuning_seed(named, cfg.run.seed)
         rec = load_recorded(cfg, data)
+        refuse_unjudgeable(rec)
     except ConfigError as exc:
         raise fail(str(exc)) from None
     except ValueError as exc:
@@ -274,6 +299,23 @@ def _bench_recorded(
     text = (folder / "summary.md").read_text()
     out.print(text, soft_wrap=True, markup=False, highlight=False)
     out.print(f"wrote {folder}/")
+    _exit_if_diverged(res.divergences, res.file_names)
+
+
+def _exit_if_diverged(divs: list[Divergence], names: list[str] | None = None) -> None:
+    """Name every divergence on stderr and exit 3 (docs/recorded_data.md, "Divergence")."""
+    from qkf.transfer_alignment.divergence import EXIT_DIVERGED
+
+    if not divs:
+        return
+    for d in divs:
+        text = d.describe(None if names is None else names[d.trial])
+        err.print(
+            f"[bold red]diverged:[/] {escape(text)}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    raise typer.Exit(EXIT_DIVERGED)
 
 
 @app.command("record")

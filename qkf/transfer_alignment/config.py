@@ -358,6 +358,10 @@ class RecordedConfig(StrictModel):
     quaternion_tolerance: Annotated[float, Field(gt=0.0, lt=0.1)] = 1e-6  # |‖q‖ − 1|
     max_rate_rad_s: PositiveFloat = 10.0  # a larger |ω| is refused ("deg/s given?")
     chunk_rows: Annotated[int, Field(ge=1024, le=10_000_000)] = 262_144  # rows read at a time
+    # the gyro and ADS rates against the rotation of the ADS attitudes: deg/s, ms, scalar-first
+    # or inertial → body quaternions refused by name (recorded/conventions.py)
+    check_conventions: bool = True
+    ignore_columns: tuple[str, ...] = ()  # extra columns of the files, read past (never used)
 
 
 class SageHusaConfig(StrictModel):

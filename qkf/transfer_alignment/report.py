@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from qkf.core.stats import average_nees_band
 from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
+from qkf.transfer_alignment.divergence import divergence_lines
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.metrics import (
     METRIC_COLUMNS,
@@ -419,7 +421,8 @@ def nees_window_text(res: BenchResult) -> str:
     )
 
 
-def summary_markdown(res: BenchResult) -> str:
+def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None) -> str:
+    """summary.md of a benchmark; ``trial_names[trial]``: what each trial is (recorded files)."""
     cfg = res.config
     weights = state_weights(cfg) if res.weights is None else res.weights
     crlb_summary = summarize(
@@ -437,6 +440,7 @@ def summary_markdown(res: BenchResult) -> str:
         "",
         f"{cfg.description}".strip(),
         "",
+        *divergence_lines([d for m in res.methods for d in m.divergences], trial_names),
         f"Trials: {res.trials}, seed: {res.seed}, matching: {cfg.filter.matching}, "
         f"q_p0 = {cfg.filter.qp0:g} /s, duration {cfg.scenario.duration_s:g} s.",
         "RMS over trials; *final* = over the last 20 % of the run, *avg* = over the whole run, "
@@ -505,9 +509,6 @@ def summary_markdown(res: BenchResult) -> str:
     notes = [f"- {m.name}: {note}" for m in res.methods for note in m.notes.values()]
     if notes:
         lines += ["", *notes]
-    bad = [m for m in res.methods if m.diverged]
-    if bad:
-        lines += ["", "**Diverged trials:** " + ", ".join(f"{m.name}: {m.diverged}" for m in bad)]
     return "\n".join(lines) + "\n"
 
 
@@ -539,10 +540,13 @@ def _gap_lines(res: BenchResult) -> list[str]:
     return out
 
 
-def bench_tables(res: BenchResult, per_epoch: bool = True) -> dict[str, bytes]:
+def bench_tables(
+    res: BenchResult, per_epoch: bool = True, trial_names: Sequence[str] | None = None
+) -> dict[str, bytes]:
     """The text files of a benchmark, rendered: rms.csv, summary.csv, summary.md, crlb.csv and
     (if any method chose κ) kappa.csv. ``per_epoch`` False leaves out the two files with a row
-    per epoch (rms.csv, crlb.csv), for a caller that streams them (a long recorded run)."""
+    per epoch (rms.csv, crlb.csv), for a caller that streams them (a long recorded run);
+    ``trial_names``: see :func:`summary_markdown`."""
     files = {}
     if per_epoch:
         rms_rows = [
@@ -554,7 +558,7 @@ def bench_tables(res: BenchResult, per_epoch: bool = True) -> dict[str, bytes]:
     files |= {
         "summary.csv": csv_text(SUMMARY_COLUMNS, summary_rows(res)),
         "trials.csv": csv_text(TRIAL_COLUMNS, trial_rows(res)),
-        "summary.md": summary_markdown(res),
+        "summary.md": summary_markdown(res, trial_names),
     }
     if per_epoch:
         files["crlb.csv"] = crlb_csv_text(res.bound)

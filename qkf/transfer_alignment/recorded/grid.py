@@ -35,6 +35,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.params import FilterParams
+from qkf.transfer_alignment.recorded.conventions import check_conventions
 from qkf.transfer_alignment.recorded.reader import (
     ReadLimits,
     RecordedDataError,
@@ -96,6 +98,7 @@ def read_limits(cfg: Config) -> ReadLimits:
         quaternion_tolerance=rc.quaternion_tolerance,
         max_rate_rad_s=rc.max_rate_rad_s,
         chunk_rows=rc.chunk_rows,
+        ignore_columns=frozenset(rc.ignore_columns),
     )
 
 
@@ -283,12 +286,15 @@ def load_recorded(cfg: Config, paths: Sequence[str | Path]) -> RecordedSet:
     """
     files = data_files(paths)
     limits = read_limits(cfg)
+    params = FilterParams.from_config(cfg)
     use_rate = cfg.filter.matching == "attitude_rate"
     trials: list[_Trial] = []
     infos: list[GridInfo] = []
     dt = n = None
     for path in files:
         run = read_recorded(path, limits)
+        if cfg.recorded.check_conventions:
+            check_conventions(run, params.sigma_a, float(params.p0_sigma[3:6].max()))
         placed = place_rows(run, cfg)
         if dt is None:
             dt, n = placed.dt, placed.n

@@ -19,6 +19,7 @@ import pyarrow.csv as pacsv
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, write_manifest
 from qkf.core.plotting import figure_png
+from qkf.transfer_alignment.divergence import divergence_lines
 from qkf.transfer_alignment.recorded.quality import (
     LAGS,
     QUALITY_COLUMNS,
@@ -168,6 +169,8 @@ def summary_markdown(res: RecordedResult) -> str:
             f"| {i} | {f.path.name} | {f.rows:,} | {f.epoch.size:,} | {f.held_epochs:,} | "
             f"{f.partial_rows:,} | {f.updates:,} | `{f.sha256[:16]}…` |"
         )
+    if res.bench is None:  # with truth, the benchmark's part of summary.md names them
+        lines = [*lines[:2], *divergence_lines(res.divergences, res.file_names), *lines[2:]]
     if any(f.partial_rows for f in rec.files):
         lines += [
             "",
@@ -196,11 +199,16 @@ def summary_markdown(res: RecordedResult) -> str:
     ]
     flags: list[str] = []
     silent = []
+    unjudged: list[str] = []
+    judged = 0
     for m in res.methods:
         if not any(m.quality):
             silent.append(m.name)
         for t, qs in enumerate(m.quality):
             for q in qs:
+                judged += q.epochs
+                if q.epochs == 0:
+                    unjudged.append(f"{m.name} (trial {t}, {q.block})")
                 lines.append(
                     f"| {m.name} | {t} | {q.block} | {q.epochs:,} | {_fmt(q.nis_mean)} | "
                     f"[{_fmt(q.nis_mean_lo)}, {_fmt(q.nis_mean_hi)}] | {_pct(q.in_band)} "
@@ -213,11 +221,21 @@ def summary_markdown(res: RecordedResult) -> str:
             f"Not judged (the method reports no per-epoch NIS): {', '.join(silent)}.",
             "",
         ]
-    lines += (
-        ["**Flagged** — the data refute the filter's noise model:", "", *flags]
-        if flags
-        else ["No flag: every judged filter's innovations fit its noise model."]
-    )
+    if unjudged:
+        lines += [
+            "Not judged (no update with a finite NIS in the window: a diverged filter, or no "
+            f"measurement there): {', '.join(unjudged)}.",
+            "",
+        ]
+    if flags:
+        lines += ["**Flagged** — the data refute the filter's noise model:", "", *flags]
+    elif judged:
+        lines.append(
+            f"No flag on the {judged:,} judged epoch-blocks: every judged filter's innovations "
+            "fit its noise model there."
+        )
+    else:
+        lines.append("Nothing judged: no method has a finite NIS in the window.")
     lines += [
         "",
         "## Final calibration (last epoch, ± 1.96 σ)",
@@ -377,7 +395,7 @@ def write_recorded_run(
     if res.bench is not None:
         # rms.csv and crlb.csv have a row per epoch: streamed below (a day at 10 Hz would take
         # gigabytes rendered in memory)
-        files.update(bench_tables(res.bench, per_epoch=False))
+        files.update(bench_tables(res.bench, per_epoch=False, trial_names=res.file_names))
         files.update(bench_figures(res.bench))
     recorded_md = summary_markdown(res)
     files["summary.md"] = (

@@ -77,6 +77,7 @@ class ReadLimits:
     quaternion_tolerance: float = 1e-6  # |‖q‖ − 1| above it: refused; within: renormalised
     max_rate_rad_s: float = 10.0  # a larger |ω| (ADS rate or gyro): refused ("deg/s given?")
     chunk_rows: int = 262_144  # rows per streamed batch (CSV: at most, about)
+    ignore_columns: frozenset[str] = frozenset()  # extra columns read past (never used)
 
     def __post_init__(self) -> None:
         if self.max_rows < 1 or self.chunk_rows < 1:
@@ -169,19 +170,29 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def check_header(path: Path, names: Sequence[str]) -> bool:
-    """Refuse duplicate, unknown, missing or partial-truth columns; True if truth is present."""
+def check_header(
+    path: Path, names: Sequence[str], ignore: frozenset[str] = frozenset()
+) -> list[str]:
+    """Refuse duplicate, unknown, missing or partial-truth columns; the columns to read (every
+    column but those in ``ignore``, which may not be a column qkf reads)."""
     twice = sorted({c for c in names if list(names).count(c) > 1})
     if twice:
         raise RecordedDataError(
             f"{path}: column {', '.join(repr(c) for c in twice)} appears more than once"
         )
-    unknown = [c for c in names if c not in ALL_COLUMNS]
+    used = sorted(ignore & set(ALL_COLUMNS))
+    if used:
+        raise RecordedDataError(
+            f"{path}: column {', '.join(repr(c) for c in used)} is read by qkf and cannot be "
+            "ignored (--ignore-column / recorded.ignore_columns is for extra columns)"
+        )
+    unknown = [c for c in names if c not in ALL_COLUMNS and c not in ignore]
     if unknown:
         raise RecordedDataError(
             f"{path}: unknown column {', '.join(repr(c) for c in unknown)}; the columns are "
             f"{', '.join(REQUIRED_COLUMNS)} and optionally all of {', '.join(TRUTH_COLUMNS)} "
-            "(docs/recorded_data.md)"
+            "(docs/recorded_data.md). Extra columns can be read past: --ignore-column NAME "
+            "(config: recorded.ignore_columns)"
         )
     missing = [c for c in REQUIRED_COLUMNS if c not in names]
     if missing:
@@ -192,7 +203,7 @@ def check_header(path: Path, names: Sequence[str]) -> bool:
         raise RecordedDataError(
             f"{path}: truth columns are all or none; missing {', '.join(absent)}"
         )
-    return bool(truth)
+    return [c for c in names if c not in ignore]
 
 
 def line_of(path: Path, row: int) -> int:
@@ -449,9 +460,10 @@ class _Collector:
         return a[: self.rows] if a.shape[0] - self.rows <= self.rows // 4 else a[: self.rows].copy()
 
 
-def _csv_header(path: Path, limits: ReadLimits) -> tuple[list[str], int, int]:
-    """The column names of a CSV file, the parser's block size (bytes) for batches of about
-    ``limits.chunk_rows`` rows, and an estimate of its rows, from the start of the file."""
+def _csv_header(path: Path, limits: ReadLimits) -> tuple[list[str], list[str], int, int]:
+    """The column names of a CSV file, those read (not ignored), the parser's block size
+    (bytes) for batches of about ``limits.chunk_rows`` rows, and an estimate of its rows, from
+    the start of the file."""
     with path.open("rb") as f:
         sample = f.read(_SAMPLE_BYTES)
     if not sample.strip():
@@ -469,7 +481,8 @@ def _csv_header(path: Path, limits: ReadLimits) -> tuple[list[str], int, int]:
             f"{path}: line 1 is blank; the first line is the header ({', '.join(REQUIRED_COLUMNS)})"
         )
     names = [c.strip() for c in next(csv.reader([text]))]
-    check_header(path, names)
+    _refuse_other_separator(path, names)
+    kept = check_header(path, names, limits.ignore_columns)
     body = b"" if end < 0 else sample[end + 1 :]
     lines = body.count(b"\n")
     row_bytes = len(body) / lines if lines else len(head) + 1.0
@@ -478,14 +491,31 @@ def _csv_header(path: Path, limits: ReadLimits) -> tuple[list[str], int, int]:
         min(max(limits.chunk_rows * row_bytes, 4 * longest, MIN_BLOCK_BYTES), MAX_BLOCK_BYTES)
     )
     rows = int(path.stat().st_size / row_bytes * 1.02) + 16
-    return names, block, rows
+    return names, kept, block, rows
+
+
+def _refuse_other_separator(path: Path, names: list[str]) -> None:
+    """A header that is one cell holding the column names joined by ``;`` or a tab: a
+    spreadsheet's export for a locale with decimal commas (refused with that hint)."""
+    if len(names) != 1:
+        return
+    for sep, what in ((";", "';'"), ("\t", "tabs")):
+        cells = [c.strip() for c in names[0].split(sep)]
+        if len(cells) > 1 and TIME in cells:
+            raise RecordedDataError(
+                f"{path}: line 1: the columns are separated by {what}; qkf reads comma-separated "
+                "files with decimal points (a spreadsheet's export for a decimal-comma locale? "
+                "save as CSV with ',' between cells and '.' in numbers)"
+            )
 
 
 class _SlowRead(Exception):
     """A batch failed to convert to numbers: read the file again as text."""
 
 
-def _csv_batches(path: Path, names: list[str], block: int, fast: bool) -> Iterator[pa.RecordBatch]:
+def _csv_batches(
+    path: Path, names: list[str], kept: list[str], block: int, fast: bool
+) -> Iterator[pa.RecordBatch]:
     """The file's batches: numbers (``fast``: raises :class:`_SlowRead` on the first one that
     does not convert) or text (one thread, so a row of the wrong length is numbered)."""
     invalid: list[pacsv.InvalidRow] = []
@@ -498,14 +528,17 @@ def _csv_batches(path: Path, names: list[str], block: int, fast: bool) -> Iterat
     if fast:
         parse = pacsv.ParseOptions()
         convert = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(names, pa.float64()), null_values=[""]
+            column_types=dict.fromkeys(kept, pa.float64()),
+            null_values=[""],
+            include_columns=kept,
         )
     else:
         parse = pacsv.ParseOptions(invalid_row_handler=on_invalid)
         convert = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(names, pa.string()),
+            column_types=dict.fromkeys(kept, pa.string()),
             strings_can_be_null=False,
             quoted_strings_can_be_null=False,
+            include_columns=kept,
         )
     try:
         reader = pacsv.open_csv(
@@ -524,9 +557,14 @@ def _csv_batches(path: Path, names: list[str], block: int, fast: bool) -> Iterat
             bad = invalid[0]
             row = bad.number - 1  # the parser counts the header as row 1
             cells = f"{bad.actual_columns} cell{'s' if bad.actual_columns != 1 else ''}"
+            hint = (
+                "; decimal commas? numbers take '.', and ',' separates the cells"
+                if bad.actual_columns > bad.expected_columns and re.search(r"\d,\d", bad.text)
+                else ""
+            )
             raise RecordedDataError(
                 f"{path}: row {row} (line {line_of(path, row)}): {cells}, the header has "
-                f"{bad.expected_columns} ({bad.text[:60]!r})"
+                f"{bad.expected_columns} ({bad.text[:60]!r}){hint}"
             ) from None
         # the parser's own message, e.g. text that is not UTF-8: its row and column named
         found = re.match(r"In CSV column #(\d+): Row #(\d+): (.*)", str(exc), re.DOTALL)
@@ -542,16 +580,16 @@ def _csv_batches(path: Path, names: list[str], block: int, fast: bool) -> Iterat
 
 
 def _read_csv(path: Path, limits: ReadLimits) -> _Collector:
-    names, block, rows = _csv_header(path, limits)
-    col = _Collector(path, names, limits, csv=True, capacity=rows)
+    names, kept, block, rows = _csv_header(path, limits)
+    col = _Collector(path, kept, limits, csv=True, capacity=rows)
     try:
-        for batch in _csv_batches(path, names, block, fast=True):
+        for batch in _csv_batches(path, names, kept, block, fast=True):
             col.add(batch)
         return col
     except _SlowRead:
         del col
-    col = _Collector(path, names, limits, csv=True, capacity=rows)
-    for batch in _csv_batches(path, names, block, fast=False):
+    col = _Collector(path, kept, limits, csv=True, capacity=rows)
+    for batch in _csv_batches(path, names, kept, block, fast=False):
         col.add(batch)
     return col
 
@@ -561,8 +599,7 @@ def _read_parquet(path: Path, limits: ReadLimits) -> _Collector:
         pf = pq.ParquetFile(path, pre_buffer=False)  # pre-buffering reads all row groups
     except (pa.ArrowInvalid, OSError) as exc:
         raise RecordedDataError(f"{path}: not a readable Parquet file ({exc})") from None
-    names = list(pf.schema_arrow.names)
-    check_header(path, names)
+    names = check_header(path, list(pf.schema_arrow.names), limits.ignore_columns)
     if pf.metadata.num_rows > limits.max_rows:  # from the footer: nothing read
         raise _over_limit(path, limits)
     col = _Collector(path, names, limits, csv=False, capacity=pf.metadata.num_rows)

@@ -25,6 +25,7 @@ from qkf.transfer_alignment.benchmark import (
 )
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
+from qkf.transfer_alignment.divergence import Divergence, find_divergences
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     MethodOutput,
@@ -36,8 +37,35 @@ from qkf.transfer_alignment.methods import (
 )
 from qkf.transfer_alignment.methods.covariance import covariance_epochs
 from qkf.transfer_alignment.recorded.grid import RecordedSet
-from qkf.transfer_alignment.recorded.quality import BlockQuality, block_quality
+from qkf.transfer_alignment.recorded.quality import LAGS, BlockQuality, block_quality
+from qkf.transfer_alignment.recorded.reader import RecordedDataError
 from qkf.transfer_alignment.scenario import ScenarioData
+
+MIN_JUDGED_UPDATES = 4 * LAGS
+"""Fewest ADS updates in the settled window for a file to be judged: the whiteness check reads
+the autocorrelation up to lag ``LAGS``, and an autocorrelation is read up to lag ``n/4`` at
+most (Box and Jenkins), so ``n ≥ 4 · LAGS``. The NIS band fraction of so few epochs is itself
+uncertain by ±0.07 (binomial at 0.95), which the flag level (0.90) allows for."""
+
+
+def refuse_unjudgeable(rec: RecordedSet) -> None:
+    """Refuse (:class:`RecordedDataError`) a file with fewer than :data:`MIN_JUDGED_UPDATES`
+    ADS updates at ``t ≥ run.settled_s`` (t from the file's first ADS attitude)."""
+    cfg = rec.cfg
+    settled_s = cfg.run.settled_s
+    settled = rec.data.t >= settled_s
+    masks = np.broadcast_to(rec.data.has_meas, (rec.data.n_trials, rec.data.n_epochs))
+    for info, meas in zip(rec.files, masks, strict=True):
+        n = int(np.count_nonzero(meas & settled))
+        if n < MIN_JUDGED_UPDATES:
+            end = float(rec.data.t[-1])
+            raise RecordedDataError(
+                f"{info.path}: too short to judge: {n} ADS update(s) at t ≥ run.settled_s = "
+                f"{settled_s:g} s (the run spans {end:.6g} s from its first ADS attitude, "
+                f"{info.updates:,} updates in all); judging needs at least {MIN_JUDGED_UPDATES} "
+                f"there (the whiteness check's {LAGS} lags × 4). Give a longer run, or a shorter "
+                "settled window for a short one (--set run.settled_s=…)"
+            )
 
 
 @dataclass
@@ -49,6 +77,7 @@ class MethodRun:
     out: MethodOutput
     runtime_s: float
     quality: list[list[BlockQuality]] = field(default_factory=list)  # [trial][block]
+    divergences: list[Divergence] = field(default_factory=list)  # first epoch per trial
 
 
 @dataclass
@@ -62,6 +91,16 @@ class RecordedResult:
     @property
     def cfg(self) -> Config:
         return self.recorded.cfg
+
+    @property
+    def divergences(self) -> list[Divergence]:
+        """Every method's diverged trials (trial: the file's index)."""
+        return [d for m in self.methods for d in m.divergences]
+
+    @property
+    def file_names(self) -> list[str]:
+        """The data file of each trial, as given."""
+        return [str(f.path) for f in self.recorded.files]
 
 
 def _slice(data: ScenarioData, ids: np.ndarray) -> ScenarioData:
@@ -155,8 +194,16 @@ def run_recorded(
                 kept[m.name] = validate_output(out, m.name, data.n_trials, data.n_epochs, n_cov)
                 report(m.name, data.trial_ids, True)
                 bar(1)
+    ids = np.arange(rec.data.n_trials)
     runs = [
-        MethodRun(m.name, m.spec, kept[m.name], runtime[m.name], judge(cfg, rec, kept[m.name]))
+        MethodRun(
+            m.name,
+            m.spec,
+            kept[m.name],
+            runtime[m.name],
+            judge(cfg, rec, kept[m.name]),
+            find_divergences(m.name, kept[m.name], rec.data.t, ids),
+        )
         for m in named
     ]
     return RecordedResult(rec, runs, bench)
@@ -166,9 +213,7 @@ def judge(cfg: Config, rec: RecordedSet, out: MethodOutput) -> list[list[BlockQu
     """Truth-free quality per trial and innovation block (nothing without the method's NIS)."""
     if out.nis is None:
         return [[] for _ in range(rec.data.n_trials)]
-    settled = rec.data.t >= cfg.run.settled_s
-    if not settled.any():  # a run shorter than the settled window: judge all of it
-        settled = np.ones_like(settled)
+    settled = rec.data.t >= cfg.run.settled_s  # refuse_unjudgeable: never empty on the CLI
     blocks = [("attitude", 0, slice(0, 3))]
     if cfg.filter.matching == "attitude_rate":
         blocks.append(("rate", 1, slice(3, 6)))
