@@ -262,7 +262,8 @@ def test_cli_with_truth_over_several_files_gives_paired_intervals(tmp_path: Path
 
 @pytest.mark.slow
 def test_a_trained_policy_runs_on_recorded_data(tmp_path: Path) -> None:
-    cfg = short(400.0)
+    # judged from 100 s: a run that ends before run.settled_s has no judged window
+    cfg = short(400.0, "run.settled_s=100")
     write(tmp_path / "p.csv", cfg, truth=False)
     rec = load_recorded(cfg, [tmp_path / "p.csv"])
     res = run_recorded(rec, f"kf,policy:{POLICY}", progress=False)
@@ -341,7 +342,7 @@ def test_cli_round_trip_estimates_csv_equals_the_simulated_filter(tmp_path: Path
     from qkf.transfer_alignment.recorded.outputs import CALIBRATION_COLUMNS
     from qkf.transfer_alignment.states import DISPLAY_UNIT
 
-    sets = ["--set", "scenario.duration_s=300"]
+    sets = ["--set", "scenario.duration_s=300", "--set", "run.settled_s=100"]
     data_file = tmp_path / "sim.csv"
     r = CliRunner().invoke(app, ["record", "thermal_snap", *sets, "--seed", "5", "--trial", "2",
                                  "--out", str(data_file)])  # fmt: skip
