@@ -64,6 +64,7 @@ def train_cmd(
     seed_option(seed)
     from agents.config import load_train_config, train_config_source
     from agents.training import plan_training, run_training
+    from agents.training.records import remove_staging
 
     sets = list(set_ or []) + ([f"seed={seed}"] if seed is not None else [])
     try:
@@ -86,6 +87,11 @@ def train_cmd(
         path = run_training(plan, progress=not quiet)
     except ConfigError as exc:  # hyperparameter values the algorithm refuses; nothing written
         raise fail(str(exc)) from None
+    except KeyboardInterrupt:
+        # Ctrl-C: --out keeps what was published (resumable); what a callback was still writing
+        # into its staging folder (a checkpoint, half written) goes
+        remove_staging(plan.out)
+        raise
     out.print(f"wrote {path}")
 
 

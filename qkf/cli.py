@@ -5,24 +5,35 @@ It only mounts the command apps of the estimation problems (``qkf/<problem>/cli.
 ``align``) and of the agents (``agents/cli.py``: ``train``, ``evaluate``, ``zoo``). The library
 never imports envs or agents; the agents' commands import them when they run (so ``torch`` is
 loaded only by the commands that use an agent). Exit codes: 0 success, 2 bad input (config,
-data, option), 1 anything else.
+data, option), 130 interrupted (Ctrl-C: one line, ``interrupted``, on stderr), 1 anything else.
 """
 
 from __future__ import annotations
 
 import sys
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from agents.cli import app as agents_app
 from qkf.alignment.cli import app as alignment_app
-from qkf.core.cli_support import out
+from qkf.core.cli_support import interruptible, out
 from qkf.redundant_gyros.cli import app as gyros_app
 from qkf.sca_fusion.cli import app as fusion_app
 from qkf.transfer_alignment.cli import app as transfer_alignment_app
 
-app = typer.Typer(
+
+class _CommandLine(typer.Typer):
+    """The ``qkf`` app. Called (the console script ``qkf``, ``python -m qkf``), a Ctrl-C in any
+    command is one line and exit 130 (:func:`qkf.core.cli_support.interruptible`); a test's
+    ``CliRunner`` invokes the commands without it."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        with interruptible():
+            return super().__call__(*args, **kwargs)
+
+
+app = _CommandLine(
     add_completion=False,
     no_args_is_help=True,
     help="qkf: adaptive Kalman filtering gym for in-orbit gyro calibration.",

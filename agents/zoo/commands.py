@@ -27,7 +27,7 @@ from pathlib import Path
 
 from agents.config import load_train_config
 from agents.training import plan_training, run_training
-from agents.training.records import EVALUATIONS
+from agents.training.records import EVALUATIONS, remove_staging
 from agents.zoo.card import write_card
 from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry
 from agents.zoo.summary import LEVEL, families_summary, judge_summary, write_summary
@@ -166,7 +166,11 @@ def train_entry(
         run_dir = work / f"seed_{seed}"
         plan = plan_training(cfg, run_dir, source=f"{entry.train_source} (seed {seed})")
         say(f"seed {seed}: {'already trained' if plan.complete else ', '.join(plan.notes)}")
-        model = run_training(plan, progress=progress)
+        try:
+            model = run_training(plan, progress=progress)
+        except KeyboardInterrupt:  # Ctrl-C: no half-written checkpoint left in a staging folder
+            remove_staging(run_dir)
+            raise
         dst = entry.seed_dir(seed)
         dst.mkdir(parents=True, exist_ok=True)
         _copy(model, dst / model.name)

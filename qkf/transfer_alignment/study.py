@@ -213,31 +213,47 @@ def _finished(case: CaseRun, folder: Path, methods: list[Any], trials: int, seed
 
 
 def prepare_output(out: str | Path, resume: bool, overwrite: bool, kind: str = "study") -> None:
-    """Refuse an output folder that holds something else, unless told to resume or replace.
+    """Refuse, before any work, an output folder that a study or sweep (``kind``) may not use.
 
     A study or sweep writes each case folder whole as soon as it is done, so an interrupted run
-    can be finished with ``resume`` (finished cases are read back, not recomputed).
+    can be finished with ``resume`` (finished cases are read back, not recomputed), or replaced
+    with ``overwrite``. A folder holding anything qkf did not write is refused whatever the
+    flags (never deleted, never written into), and a refusal suggests only a flag that works.
     """
     out = check_output_dir(out)  # as given: Path('') would be the working directory
     if resume and overwrite:
         raise OutputError("--resume and --overwrite exclude each other")
     if not out.is_dir() or not any(out.iterdir()):
         return
-    if not (resume or overwrite):
+    found = _manifest(out)
+    if found is not None and found["kind"] != kind:
         raise OutputError(
-            f"{out}: holds an earlier run; --resume finishes it, --overwrite replaces it"
+            f"{out}: holds a qkf {found['kind']} run, not a {kind} run; choose another --out"
         )
-    if overwrite:
+    foreign = _not_ours(out, found)
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (", …" if len(foreign) > 4 else "")
+        if found is None:
+            raise OutputError(
+                f"{out}: holds files that are not a qkf run ({shown}); "
+                "choose another --out or empty the folder"
+            )
+        raise OutputError(
+            f"{out}: holds files qkf did not write beside its earlier {kind} run ({shown}); "
+            "move them out of the folder or choose another --out"
+        )
+    try:
         # replaced whole at the end only if it holds nothing but an earlier run of this kind
         # (qkf.core.io.staged_directory): checked now, not after the work
         check_output_dir(out, kind)
-        return
-    # resuming removes what an earlier study or sweep left there (stale case folders,
-    # summaries): refuse, before any work, a folder that holds anything else
-    foreign = _not_ours(out)
-    if foreign:
-        shown = ", ".join(foreign[:4]) + (", …" if len(foreign) > 4 else "")
-        raise OutputError(f"{out}: holds files that are not a qkf run ({shown})")
+        replaceable = None
+    except OutputError as exc:
+        replaceable = exc
+    if overwrite and replaceable is not None:
+        raise replaceable
+    if not (resume or overwrite):
+        hint = "--resume finishes it" + (", --overwrite replaces it" if replaceable is None else "")
+        raise OutputError(f"{out}: holds an earlier qkf {kind} run; {hint}")
 
 
 _SUMMARY_FILES = {
@@ -247,18 +263,44 @@ _SUMMARY_FILES = {
 """The files a study or sweep writes beside its case folders."""
 
 
-def _not_ours(out: Path) -> list[str]:
-    """The entries of ``out`` that no study or sweep wrote: anything but case folders (each
-    holds a ``run.json``), the summary files and qkf's hidden staging folders."""
-    return sorted(
-        e.name
-        for e in out.iterdir()
-        if not (
-            e.name.startswith(".")
-            or (e.is_dir() and (e / RUN_FILE).is_file())
-            or (e.is_file() and e.name in _SUMMARY_FILES)
-        )
-    )
+def _manifest(folder: Path) -> dict[str, Any] | None:
+    """The qkf manifest (``run.json``) of ``folder``, or None if it holds none."""
+    try:
+        return read_manifest(folder)
+    except (ConfigError, OSError):
+        return None
+
+
+def _listed(info: dict[str, Any] | None) -> set[str]:
+    """The files a manifest says its run wrote (relative to its folder)."""
+    files = None if info is None else info.get("files")
+    return set(map(str, files)) if isinstance(files, list) else set()
+
+
+def _not_ours(out: Path, root: dict[str, Any] | None) -> list[str]:
+    """What no study or sweep wrote in ``out``, as paths relative to it (a folder with a
+    trailing ``/``): any file but those the folder's ``run.json`` (``root``) or a case folder's
+    own lists, the summary files and qkf's hidden staging folders. Without a ``run.json``,
+    ``out`` holds no study or sweep: all its entries."""
+    if root is None:
+        return [f"{e.name}/" if e.is_dir() else e.name for e in sorted(out.iterdir())]
+    listed = _listed(root)
+    found = []
+    for entry in sorted(out.iterdir()):
+        if entry.name.startswith("."):
+            continue
+        if not entry.is_dir():
+            if entry.name not in listed and entry.name not in _SUMMARY_FILES:
+                found.append(entry.name)
+            continue
+        own = _listed(_manifest(entry))
+        for p in sorted(entry.rglob("*")):
+            rel = p.relative_to(entry).as_posix()
+            if not p.is_dir() and rel not in own and f"{entry.name}/{rel}" not in listed:
+                found.append(f"{entry.name}/{rel}")
+        if not any(entry.iterdir()):
+            found.append(f"{entry.name}/")
+    return found
 
 
 def _write_root_manifest(where: Path, kind: str, config: dict[str, Any], **run: Any) -> None:
