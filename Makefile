@@ -2,6 +2,8 @@
 #   make bench   create .venv, install, run the main benchmark (results/paper/)
 #   make test    create .venv, install, run the whole test suite (spread over the cores)
 #   make test-fast   the same without the tests marked slow: the check to run while working
+#   make test-portable   test-fast as if on another CPU (generic numba code, numpy without its
+#                    AVX kernels): run it before changing any tolerance
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +11,7 @@ STAMP := $(VENV)/.installed
 # torch first and pinned: the CPU wheel on disk; any other spec pulls the CUDA stack.
 TORCH := torch==2.13.0
 
-.PHONY: install bench test test-fast lint typecheck speed clean
+.PHONY: install bench test test-fast test-portable lint typecheck speed clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,6 +37,18 @@ test: $(STAMP)
 # [tool.pytest.ini_options]); `make test` and CI (.ci/run) still run them.
 test-fast: $(STAMP)
 	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto -m "not slow"
+
+# test-fast as close to another x86-64 CPU as this one allows, for the pins of computed floats
+# (a test must pass on every machine): numba compiles for a generic CPU (its cache keeps that
+# code apart from the native one), and numpy's SIMD kernels chosen at run time (AVX2, AVX-512)
+# are switched off. numpy refuses to switch off its baseline, so the list is read from numpy:
+# the dispatched features this CPU has. OpenBLAS keeps its kernel for this CPU.
+NPY_DISPATCHED := import numpy as np; m = np._core._multiarray_umath; \
+	print(",".join(f for f in m.__cpu_dispatch__ if m.__cpu_features__.get(f)))
+test-portable: $(STAMP)
+	$(TEST_ENV) NUMBA_CPU_NAME=generic \
+	NPY_DISABLE_CPU_FEATURES="$$($(BIN)/python -c '$(NPY_DISPATCHED)')" \
+	$(BIN)/python -m pytest -q -n auto -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
