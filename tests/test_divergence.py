@@ -155,3 +155,21 @@ def test_a_file_too_short_to_judge_is_refused(tmp_path: Path, duration: float) -
         res = runner.invoke(app, [*args, "--set", "run.settled_s=100"])
         assert res.exit_code == 0, res.output
         assert "(t ≥ 100 s)" in (folder / "summary.md").read_text()
+
+
+def test_a_sweep_with_a_diverging_case_exits_3(tmp_path: Path) -> None:
+    """Each case's summary.md names its divergence; the sweep's command exits 3 after the
+    sweep, naming the cases."""
+    folder = tmp_path / "sweep"
+    res = runner.invoke(
+        app,
+        ["bench", "noise_mismatch", "--set", "scenario.duration_s=100", "--set",
+         "sweep.values=[1.0,3.0]", "--trials", "2", "--quiet", "--methods",
+         "tests.test_divergence:kf_that_diverges", "--out", str(folder)],
+    )  # fmt: skip
+    assert res.exit_code == EXIT_DIVERGED, res.output
+    cases = sorted(p for p in folder.iterdir() if p.is_dir())
+    assert len(cases) == 2
+    for case in cases:
+        assert "## Diverged" in (case / "summary.md").read_text()
+        assert f"diverged: {case / 'summary.md'}" in res.output.replace("\n", "")

@@ -172,6 +172,7 @@ def bench_cmd(
         raise fail("--ignore-column is for the files of --data")
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed, run_benchmark
+    from qkf.transfer_alignment.divergence import DIVERGED_HEADING, EXIT_DIVERGED
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
     from qkf.transfer_alignment.report import write_bench
     from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
@@ -219,11 +220,15 @@ def bench_cmd(
         folder = Path(out_path)  # the sweep's folder: checked by run_sweep (prepare_output)
     bench = {"progress": not quiet, "backend": backend, "workers": workers}
 
+    diverged_cases: list[Path] = []
+
     def show(folder: Path) -> None:
         # raw markdown, unwrapped: a narrow terminal must not truncate the numbers
         text = (folder / "summary.md").read_text()
         out.print(text, soft_wrap=True, markup=False, highlight=False)
         out.print(f"wrote {folder}/")
+        if f"\n{DIVERGED_HEADING}\n" in text:  # a sweep case (finished now or earlier)
+            diverged_cases.append(folder)
 
     try:
         if cfg.sweep is None:
@@ -245,6 +250,12 @@ def bench_cmd(
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None
     out.print(f"wrote {summary}")
+    if diverged_cases:
+        for folder in diverged_cases:
+            err.print(
+                f"[bold red]diverged:[/] {escape(str(folder / 'summary.md'))}", soft_wrap=True
+            )
+        raise typer.Exit(EXIT_DIVERGED)
 
 
 def _bench_recorded(

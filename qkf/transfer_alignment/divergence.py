@@ -35,6 +35,8 @@ NIS_IMPLAUSIBLE = 1.0e4
 could be off by (innovations 100 σ)."""
 NIS_RUN = 10
 """Consecutive implausible updates that make a divergence."""
+DIVERGED_HEADING = "## Diverged"
+"""The heading of summary.md's section on divergences (a sweep's command finds it per case)."""
 BLOCKS: tuple[tuple[str, int], ...] = (("attitude", 3), ("rate", 3))
 """The NIS columns of :class:`MethodOutput` (``nis[..., c]``): block name and rows."""
 
@@ -119,7 +121,7 @@ def divergence_lines(divs: Sequence[Divergence], names: Sequence[str] | None = N
     if not divs:
         return []
     lines = [
-        "## Diverged",
+        DIVERGED_HEADING,
         "",
         f"**{len(divs)} run(s) diverged**: from the epoch named on, the method's numbers below "
         "(and in every file of this folder) describe a filter that no longer tracks the data "
