@@ -117,8 +117,8 @@ def test_compiled_mixing_is_mix_bank(switching: str) -> None:
     np.testing.assert_array_equal(cmp.diverged, ref.diverged)
     assert not cmp.diverged[: 2 * n_act].any()  # the live trials restarted every model
     mixed = slice(0, 2 * n_act)
-    # unit quaternions: a few units in the last place (the compiled mixing's last bits depend
-    # on how numba compiled it, fresh or from its cache; docs/performance.md)
+    # unit quaternions: a few units in the last place (the compiled mixing fuses multiply-adds
+    # and reassociates sums; its own rounding is fixed, whatever the cache: docs/performance.md)
     np.testing.assert_allclose(cmp.q_hat[mixed], ref.q_hat[mixed], rtol=0, atol=1e-15)
     np.testing.assert_allclose(cmp.b_hat[mixed], ref.b_hat[mixed], rtol=1e-13, atol=1e-22)
     np.testing.assert_allclose(cmp.p_hat[mixed], ref.p_hat[mixed], rtol=1e-13, atol=1e-19)

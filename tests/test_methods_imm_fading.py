@@ -398,8 +398,8 @@ def test_fading_that_never_fires_is_the_plain_filter() -> None:
     np.testing.assert_array_equal(out.kappa, 1.0)
     kf = METHODS["kf"](cfg, data)
     # the same filter to rounding: fading's compiled code and the kernel are separate copies
-    # of the arithmetic, and their last bits depend on how numba compiled each (fresh or from
-    # its cache; docs/performance.md). Scale: 1 for q̂, the prior sigmas for b̂ and p̂.
+    # of the arithmetic, each optimised in its own module, and their last bits differ
+    # (docs/performance.md). Scale: 1 for q̂, the prior sigmas for b̂ and p̂.
     scale = np.concatenate([np.ones(4), new_filter(cfg, data).params.p0_sigma[3:]])
     np.testing.assert_allclose(out.est / scale, kf.est / scale, rtol=1e-9, atol=1e-12)
 

@@ -26,6 +26,8 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+
 DEG = np.pi / 180.0
 
 

@@ -32,6 +32,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+
 
 class NotPositiveDefiniteError(np.linalg.LinAlgError):
     """The normal matrix is singular or indefinite: some parameters are not determined."""

@@ -1,4 +1,4 @@
-"""Compile options shared by the compiled kernels (numba).
+"""Compile options shared by the compiled kernels (numba), and how compiled calls are bound.
 
 The numbers a compiled routine produces depend on its options as much as on its source: with
 ``fastmath`` LLVM may reassociate sums and fuse multiply–adds, so the same routine compiled with
@@ -7,6 +7,11 @@ bits. Every routine of the transfer-alignment kernel and of its shared pieces (t
 rotation core :mod:`qkf.core.quat`, the compiled model
 :mod:`qkf.transfer_alignment.model_compiled`) is therefore compiled through :func:`kernel_jit`,
 and moving one between modules keeps its options.
+
+Importing this module also makes every compiled function run the code that was compiled with
+it, whatever the state of numba's on-disk cache (:func:`bind_callee_copies_locally`;
+docs/performance.md, "A fresh compile and the cached code"). Every module of ``qkf`` and
+``envs`` that compiles code imports it before anything is compiled.
 """
 
 from __future__ import annotations
@@ -14,14 +19,95 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
+import llvmlite.binding as ll
 import numba as nb
+from numba.core import codegen as _codegen
 
 FASTMATH = {"reassoc", "contract", "arcp"}
 """LLVM fast-math flags of the kernels: reassociation lets LLVM vectorise the small reductions,
 ``contract`` fuses multiply–adds, ``arcp`` turns divisions into reciprocal multiplications.
 NaN and Inf semantics are kept (no ``nnan``/``ninf``), so the finiteness checks still work."""
 
+LINK_TAG = "qkf-local-callee-copies-2"
+"""Appended to numba's cache key (the code generator's ``magic_tuple``) where
+:func:`bind_callee_copies_locally` is installed: code cached without it (weakly bound copies) is
+never loaded where it is installed, and the other way round."""
+
 _F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def internalize_linked_functions(module: ll.ModuleRef, own: set[str] | None = None) -> int:
+    """Give internal linkage to the copies of compiled callees that numba linked into an
+    optimised ``module``; returns their number.
+
+    The copies are the function definitions not in ``own`` (the names the library defined
+    itself before numba linked its callees in), and any ``linkonce_odr`` definition (what
+    numba links in; also its per-module helpers, such as ``NRT_incref``).
+
+    numba links into the LLVM module of each compiled function a copy of every compiled function
+    it calls, as ``linkonce_odr`` (the wrapper of a ``prange`` loop as ``weak_odr``), and
+    optimises the whole module again. A copy that is not inlined stays a weak symbol of the
+    object code, and the JIT linker binds every call to a weak symbol to the first definition of
+    that name loaded into the process: the callee's own code if the process compiled it first
+    (callees compile before their callers), or the copy inside whichever caller was loaded first
+    from the cache. The copies are optimised in different modules and round differently, so
+    results depended on what the process had compiled or loaded before. An internal copy is
+    bound inside its own object code.
+    """
+    local = (ll.Linkage.internal, ll.Linkage.private)
+    count = 0
+    for fn in module.functions:
+        if fn.is_declaration or fn.linkage in local:
+            continue
+        if fn.linkage == ll.Linkage.linkonce_odr or (own is not None and fn.name not in own):
+            fn.linkage = ll.Linkage.internal
+            count += 1
+    return count
+
+
+def bind_callee_copies_locally() -> None:
+    """Make every function numba compiles from now on (in this process) call only the copies
+    of its callees that were compiled into its own object code; idempotent.
+
+    Runs :func:`internalize_linked_functions` after numba's optimisation of a library's final
+    module and before its machine code is generated: the optimised code is the one numba makes
+    without it, only the binding of the calls changes. The machine code numba caches is what
+    the JIT ran, byte for byte, so a function gives the same numbers compiled in the running
+    process, loaded from a cache one process wrote, or from one that several processes wrote
+    at once. Adds :data:`LINK_TAG` to the cache key.
+    """
+    library_class = _codegen.CPUCodeLibrary
+    if getattr(library_class, "_qkf_local_copies", False):
+        return
+    finalize = getattr(library_class, "finalize", None)
+    optimize = getattr(library_class, "_optimize_final_module", None)
+    magic_tuple = getattr(_codegen.CPUCodegen, "magic_tuple", None)
+    if finalize is None or optimize is None or magic_tuple is None:  # pragma: no cover
+        raise RuntimeError(
+            f"numba {nb.__version__}: CPUCodeLibrary.finalize, ._optimize_final_module or "
+            "CPUCodegen.magic_tuple is missing; qkf.core.jit cannot bind compiled callees "
+            "locally (docs/performance.md)"
+        )
+
+    def _finalize(self: Any) -> None:
+        # before numba links the callees in: what the library defines itself
+        self._qkf_own = {f.name for f in self._final_module.functions if not f.is_declaration}
+        finalize(self)
+
+    def _optimize_final_module(self: Any) -> None:  # called by finalize, after the linking
+        optimize(self)
+        internalize_linked_functions(self._final_module, getattr(self, "_qkf_own", None))
+
+    def _magic_tuple(self: Any) -> tuple[Any, ...]:
+        return (*magic_tuple(self), LINK_TAG)
+
+    library_class.finalize = _finalize  # type: ignore[method-assign]
+    library_class._optimize_final_module = _optimize_final_module  # type: ignore[method-assign]
+    _codegen.CPUCodegen.magic_tuple = _magic_tuple  # type: ignore[method-assign]
+    library_class._qkf_local_copies = True  # type: ignore[attr-defined]
+
+
+bind_callee_copies_locally()
 
 
 def kernel_jit(*, inline: bool = False, nrt: bool = False) -> Callable[[_F], _F]:

@@ -32,12 +32,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-# Reassociation lets LLVM vectorise the small reductions; NaN and Inf semantics are kept, so
-# the finiteness checks still work.
-_FASTMATH = {"reassoc", "contract", "arcp"}
+from qkf.core.jit import FASTMATH
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def cholesky_inplace(s: np.ndarray) -> bool:
     """Lower Cholesky factor of the symmetric matrix ``s``, in place; False if not PD."""
     m = s.shape[0]
@@ -60,7 +58,7 @@ def cholesky_inplace(s: np.ndarray) -> bool:
     return True
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def forward_solve(lower: np.ndarray, b: np.ndarray) -> None:
     """Solve ``L y = b`` in place for a lower-triangular ``L`` (``b`` a vector)."""
     m = lower.shape[0]
@@ -71,7 +69,7 @@ def forward_solve(lower: np.ndarray, b: np.ndarray) -> None:
         b[i] = v / lower[i, i]
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def backward_solve_t(lower: np.ndarray, b: np.ndarray) -> None:
     """Solve ``Lᵀ y = b`` in place for a lower-triangular ``L`` (``b`` a vector)."""
     m = lower.shape[0]
@@ -82,7 +80,7 @@ def backward_solve_t(lower: np.ndarray, b: np.ndarray) -> None:
         b[i] = v / lower[i, i]
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def symmetrize_inplace(p: np.ndarray) -> None:
     """``P ← (P + Pᵀ)/2``."""
     n = p.shape[0]
@@ -93,7 +91,7 @@ def symmetrize_inplace(p: np.ndarray) -> None:
             p[j, i] = v
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def predict_one(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
     """Dense predict of one problem, in place."""
     n = x.shape[0]
@@ -107,7 +105,7 @@ def predict_one(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) ->
     symmetrize_inplace(p)
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def make_workspace(
     n: int, m: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -122,7 +120,7 @@ def make_workspace(
     )
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH, inline="always")
+@nb.njit(cache=True, fastmath=FASTMATH, inline="always")
 def update_sized(
     x: np.ndarray,
     p: np.ndarray,
@@ -250,7 +248,7 @@ def update_sized(
     return True, nis, logdet
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, fastmath=FASTMATH)
 def update_one(
     x: np.ndarray,
     p: np.ndarray,
@@ -269,13 +267,13 @@ def update_one(
     return update_sized(x, p, nu, h, r, s_out, ws, x.shape[0], nu.shape[0], False)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
 def _predict_batch(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
     for b in nb.prange(x.shape[0]):
         predict_one(x[b], p[b], phi[b], q[b])
 
 
-@nb.njit(parallel=True, cache=True, fastmath=_FASTMATH)
+@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
 def _update_batch(
     x: np.ndarray,
     p: np.ndarray,

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import EpisodeInputs, episode_inputs, fault_target, setup_for

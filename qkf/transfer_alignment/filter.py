@@ -40,6 +40,7 @@ from typing import Protocol, cast
 import numba as nb
 import numpy as np
 
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.model import gauss_legendre
 from qkf.transfer_alignment.params import FilterParams

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
 from qkf.core.quat import relative_rotvecs
 from qkf.transfer_alignment.states import GROUPS, N_STATES
 
