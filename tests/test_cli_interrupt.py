@@ -152,17 +152,3 @@ def test_ctrl_c_in_an_optuna_trial_of_a_study(tmp_path: Path) -> None:
     _one_line(code, err)
     assert sorted(p.name for p in out.iterdir()) == ["run.json"]  # no case finished
     assert _hidden(tmp_path) == []
-
-
-def test_ctrl_c_while_the_command_line_is_imported(tmp_path: Path) -> None:
-    """The console script imports the command line inside its entry function (qkf/__main__.py):
-    a Ctrl-C 0.3 s after the start, while numba and scipy are still being imported (or, on a
-    fast machine, just after), is the same one line."""
-    out = tmp_path / "out"
-    t0 = time.monotonic()
-    code, err = _interrupt(
-        ["bench", "paper", "--methods", "kf", "--trials", "2000", "--out", str(out)],
-        tmp_path, lambda _: time.monotonic() > t0 + 0.3,
-    )  # fmt: skip
-    _one_line(code, err)
-    assert not out.exists()
