@@ -27,12 +27,14 @@ def _bench(out: Path, *extra: str, config: str = "paper") -> object:
     )  # fmt: skip
 
 
-def _refused(result: object, *needles: str) -> None:
+def _refused(result: object, *needles: str) -> str:
+    """The one error line of a refusal (exit 2), which holds every needle."""
     out = result.output  # type: ignore[attr-defined]
     assert result.exit_code == 2, out  # type: ignore[attr-defined]
     assert "Traceback" not in out and out.count("error:") == 1, out
     for needle in needles:
         assert needle in out, out
+    return out
 
 
 def test_rerun_leaves_no_stale_file_and_modes_follow_the_umask(tmp_path: Path) -> None:

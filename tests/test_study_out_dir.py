@@ -18,6 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
+from tests.test_run_output import _refused
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,16 +31,6 @@ def _snapshot(folder: Path) -> dict[str, bytes | None]:
         p.relative_to(folder).as_posix(): None if p.is_dir() else p.read_bytes()
         for p in folder.rglob("*")
     }
-
-
-def _refused(result: object, *needles: str) -> str:
-    """The one error line of a refusal (exit 2), which holds every needle."""
-    output = result.output  # type: ignore[attr-defined]
-    assert result.exit_code == 2, output  # type: ignore[attr-defined]
-    assert "Traceback" not in output and output.count("error:") == 1, output
-    for needle in needles:
-        assert needle in output, output
-    return output
 
 
 def _no_flag_suggested(message: str) -> None:
