@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from qkf.core.cli_support import (
+    NoCacheOption,
     OverwriteOption,
     SetOption,
     fail,
@@ -107,6 +108,7 @@ def evaluate_cmd(
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     overwrite: OverwriteOption = False,
+    no_cache: NoCacheOption = False,
 ) -> None:
     """Filter Monte Carlo trials with the policy's κ; writes the files of ``qkf bench``."""
     from agents.policy import Policy
@@ -131,7 +133,9 @@ def evaluate_cmd(
     with refused(f"{scenario or policy.cfg.scenario}: "):
         check_workload(cfg, trials)
     folder = out_dir(out_path, "bench", overwrite)
-    res = run_benchmark(cfg, named, trials=trials, seed=seed, progress=not quiet)
+    res = run_benchmark(
+        cfg, named, trials=trials, seed=seed, progress=not quiet, cache=not no_cache
+    )
     write_bench(res, folder)
     out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
 
@@ -233,6 +237,7 @@ def zoo_evaluate_cmd(
             help="Also rewrite the shipped entry's evaluation/ and card.md (agents/zoo/NAME).",
         ),
     ] = False,
+    no_cache: NoCacheOption = False,
 ) -> None:
     """Judge every trained seed against the baselines and the oracle on held-out benchmark
     seeds and, with a families: section in zoo.yaml, on the scenario families (qkf study
@@ -255,8 +260,9 @@ def zoo_evaluate_cmd(
     folder = _work(work, entry)
     try:  # evaluate_entry checks the families study and the work folder before any work
         card = evaluate_entry(
-            entry, folder, trials, not quiet, lambda m: out.print(m), update_entry
-        )
+            entry, folder, trials, not quiet, lambda m: out.print(m), update_entry,
+            cache=not no_cache,
+        )  # fmt: skip
     except (ConfigError, FileNotFoundError, OutputError, MethodOutputError) as exc:
         raise fail(str(exc)) from None
     out.print(card.read_text(), soft_wrap=True, markup=False, highlight=False)

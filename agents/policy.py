@@ -14,6 +14,7 @@ period; everything else is the filter of every other method, run on the same sim
 
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 from dataclasses import dataclass
@@ -22,12 +23,14 @@ from typing import Any
 
 import numpy as np
 
+import envs
 from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.config import TrainConfig, load_train_config
 from envs import ENVIRONMENTS
 from envs.common import ActionMap
 from envs.transfer_alignment import BatchedEpisodes
 from qkf.core.config import ConfigError
+from qkf.core.results_cache import code_fingerprint
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, per_epoch
 from qkf.transfer_alignment.methods.oracle import run_schedule
@@ -150,6 +153,23 @@ class PolicyMethod:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return run_policy(cfg, data, self.path)
+
+    def cache_token(self) -> dict[str, Any]:
+        """The policy in a results-cache key (docs/caching.md): the SHA-256 of the model file
+        and of the ``config.yaml`` beside it, the path (its notes name it), and the code of
+        the environments and agents that turn observations into κ."""
+        model = _model_file(self.path)
+        return {
+            "type": "agents.policy:PolicyMethod",
+            "path": self.path,
+            "model_sha256": _sha256(model),
+            "config_sha256": _sha256(model.parent / "config.yaml"),
+            "code": code_fingerprint([Path(envs.__file__).parent, Path(__file__).parent]),
+        }
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _model_file(path: str | Path) -> Path:

@@ -17,6 +17,7 @@ import typer
 
 from agents.cli import app as agents_app
 from qkf.alignment.cli import app as alignment_app
+from qkf.cache_cli import app as cache_app
 from qkf.core.cli_support import interruptible, out
 from qkf.redundant_gyros.cli import app as gyros_app
 from qkf.sca_fusion.cli import app as fusion_app
@@ -68,6 +69,7 @@ app.add_typer(agents_app)
 app.add_typer(gyros_app, name="gyros", help="Redundant skewed gyros: FDI and UKF calibration.")
 app.add_typer(fusion_app)
 app.add_typer(alignment_app)
+app.add_typer(cache_app, name="cache")
 
 
 def main() -> None:  # pragma: no cover - entry point

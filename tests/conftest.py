@@ -75,7 +75,11 @@ def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> It
 
     before = os.environ.get("QKF_CACHE_DIR")
     os.environ["QKF_CACHE_DIR"] = str(tmp_path_factory.mktemp("qkf_cache"))
+    # and no results cache: a test that compares two runs must see both computed
+    # (tests/test_results_cache.py turns it on where it is the subject)
+    os.environ["QKF_NO_CACHE"] = "1"
     yield
+    os.environ.pop("QKF_NO_CACHE", None)
     if before is None:
         os.environ.pop("QKF_CACHE_DIR", None)
     else:

@@ -165,3 +165,42 @@ def test_hindsight_is_below_the_other_schedules_per_trial() -> None:
         other = estimate_scores(cfg, method(cfg, data).est, data)
         below = np.mean(bound <= 1.005 * other)
         assert below >= 0.95, (method, bound, other)
+
+
+def test_stopping_hopeless_candidates_changes_nothing() -> None:
+    """A candidate stopped once its sum reaches the incumbent's (SearchPlan.stop_early) could
+    not have won, so the search takes the same decisions, bit for bit, with fewer epochs."""
+    from dataclasses import replace
+
+    from qkf.transfer_alignment.methods.schedule_search import search
+
+    cfg = tiny("adaptive.hindsight.period_s=50", "adaptive.hindsight.blocks_s=[300, 150, 50]",
+               "adaptive.hindsight.passes=2")  # fmt: skip
+    data = simulate(cfg, 5, 5)  # 5 trials: the parallel kernel, then fewer rows as they stop
+    plan = hindsight_plan(cfg)
+    slow = search(cfg, data, replace(plan, stop_early=False))
+    fast = search(cfg, data, plan)
+    np.testing.assert_array_equal(fast.choice, slow.choice)
+    np.testing.assert_array_equal(fast.scores, slow.scores)
+    assert slow.stopped == 0 < fast.stopped
+    assert fast.trial_epochs < slow.trial_epochs
+
+
+def test_screening_keeps_the_best_of_each_trial_and_never_loses_ground() -> None:
+    from qkf.transfer_alignment.methods.schedule_search import _lowest_per_group
+
+    groups = np.array([0, 0, 0, 1, 1, 2])
+    values = np.array([3.0, 1.0, np.nan, 2.0, 2.0, 5.0])
+    # per trial the `keep` lowest; ties go to the earlier row, a lost (NaN) row ranks last
+    np.testing.assert_array_equal(
+        _lowest_per_group(groups, values, 2), [True, True, False, True, True, True]
+    )
+    np.testing.assert_array_equal(
+        _lowest_per_group(groups, values, 1), [False, True, False, True, False, True]
+    )
+    cfg = tiny("adaptive.hindsight.period_s=50", "adaptive.hindsight.blocks_s=[300, 150, 50]",
+               "adaptive.hindsight.screen_s=100", "adaptive.hindsight.screen_keep=1")  # fmt: skip
+    out = run_hindsight(cfg, simulate(cfg, 5, 3))
+    scores = out.logs["hindsight_scores"]
+    assert np.all(np.diff(scores, axis=1) <= 0.0)  # a screened candidate is still judged whole
+    assert "stopped" in out.notes["hindsight"]

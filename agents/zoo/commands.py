@@ -193,7 +193,12 @@ def policy_methods(entry: ZooEntry) -> list[str]:
 
 
 def evaluate_case(
-    entry: ZooEntry, case: JudgeCase, work: Path, trials: int | None, progress: bool
+    entry: ZooEntry,
+    case: JudgeCase,
+    work: Path,
+    trials: int | None,
+    progress: bool,
+    cache: bool = False,
 ) -> Path:
     """One judging benchmark; returns its bench folder (in the work folder)."""
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
@@ -203,7 +208,12 @@ def evaluate_case(
     cfg = load_config(case.scenario, list(case.overrides))
     specs = [*case.baselines, *(["oracle"] if case.oracle else []), *policy_methods(entry)]
     res = run_benchmark(
-        cfg, parse_methods(",".join(specs)), trials or case.trials, case.seed, progress=progress
+        cfg,
+        parse_methods(",".join(specs)),
+        trials or case.trials,
+        case.seed,
+        progress=progress,
+        cache=cache,
     )
     folder = work / f"judge_{Path(case.scenario).stem}_seed{case.seed}"
     write_bench(res, folder)
@@ -216,6 +226,7 @@ def evaluate_families(
     trials: int | None,
     progress: bool,
     say: Callable[[str], None] = print,
+    cache: bool = False,
 ) -> Path:
     """The entry's families study (``qkf study families`` with the entry's families, trials,
     seed, its baselines as the methods and ``NAME#SEED=policy:PATH`` per trained seed) into
@@ -231,7 +242,7 @@ def evaluate_families(
     run_study(
         FAMILIES_STUDY, out, progress, resume=False, overwrite=True, trials=run.trials,
         sets=run.sets, on_start=on_start, families=run.families, extra_methods=run.policies,
-        seed=run.seed, base_methods=run.baselines,
+        seed=run.seed, base_methods=run.baselines, cache=cache,
     )  # fmt: skip
     return out
 
@@ -251,6 +262,7 @@ def evaluate_entry(
     progress: bool = True,
     say: Callable[[str], None] = print,
     update_entry: bool = False,
+    cache: bool = False,
 ) -> Path:
     """Judge every trained seed on every case and, with a ``families:`` section, on the
     scenario families; writes ``evaluation/`` and ``card.md`` into the work folder, and with
@@ -270,7 +282,7 @@ def evaluate_entry(
         rows = []
         for case in entry.spec.cases():
             say(f"judging on {case.scenario}, benchmark seed {case.seed}")
-            folder = evaluate_case(entry, case, work, trials, progress)
+            folder = evaluate_case(entry, case, work, trials, progress, cache)
             stem = f"{Path(case.scenario).stem}_seed{case.seed}"
             _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
             _copy(folder / "summary.md", dst / f"{stem}_summary.md")
@@ -280,7 +292,7 @@ def evaluate_entry(
         from qkf.transfer_alignment.study import case_folder
 
         say(f"judging on the families {', '.join(fam.families)}, benchmark seed {fam.seed}")
-        study = evaluate_families(entry, work, trials, progress, say)
+        study = evaluate_families(entry, work, trials, progress, say, cache)
         for family in fam.families:
             _copy(
                 study / case_folder(family) / "trials.csv",

@@ -44,6 +44,15 @@ OverwriteOption = Annotated[
 ]
 
 
+NoCacheOption = Annotated[
+    bool,
+    typer.Option(
+        "--no-cache",
+        help="Compute every result afresh: neither read nor write the results cache "
+        "($QKF_CACHE_DIR/results; also $QKF_NO_CACHE=1). See docs/caching.md.",
+    ),
+]
+
 BackendOption = Annotated[
     str, typer.Option(help="local (processes on this machine) or ray (Ray tasks).")
 ]

@@ -11,14 +11,17 @@ are held in memory; :mod:`qkf.transfer_alignment.report` writes them.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Any
 
 import numpy as np
 
 from qkf.core.config import ConfigError
 from qkf.core.montecarlo import ProgressBar, chunk_ids, progress_bar, run_chunks
+from qkf.core.results_cache import ResultsCache, cache_enabled
 from qkf.core.stats import (
     ErrorAccumulator,
     average_nees_band,
@@ -28,6 +31,7 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
+from qkf.transfer_alignment.chunk_cache import chunk_key, from_entry, to_entry
 from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
@@ -96,6 +100,12 @@ class BenchResult:
     nees_t: np.ndarray = field(default_factory=lambda: np.empty(0))  # (M,) s
     # state_settled's weights (15,) SI when not the config's own (state_weights): recorded runs
     weights: np.ndarray | None = None
+    # results cache, per method: chunks that were a hit, a miss, a damaged entry, or not cached
+    cache: dict[str, dict[str, int]] = field(default_factory=dict)
+
+
+class CacheWarning(UserWarning):
+    """A damaged results-cache entry was found (and recomputed, never used)."""
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -155,6 +165,8 @@ class ChunkResult:
     nees_sum: dict[str, np.ndarray | None] = field(default_factory=dict)  # (M,) sums over trials
     nees_count: dict[str, np.ndarray] = field(default_factory=dict)  # (M,) trials summed
     divergences: dict[str, list[Divergence]] = field(default_factory=dict)
+    cache: dict[str, str] = field(default_factory=dict)  # per method: hit, miss, corrupt, off
+    cache_problems: list[str] = field(default_factory=list)  # corrupt entries found (recomputed)
 
 
 def band_epochs(n: int) -> np.ndarray:
@@ -186,51 +198,113 @@ def run_chunk(
     source: DataSource = simulate,
     keep: KeepOutput | None = None,
     weights: np.ndarray | None = None,
+    cache: bool = False,
 ) -> ChunkResult:
     """Simulate trials ``ids`` (or take them from ``source``) and run every method on them (the
     unit of work of a backend).
 
     ``report``: see :data:`MethodReport` (progress only; the results do not depend on it);
     ``keep``: see :data:`KeepOutput`; ``weights``: those of ``state_settled`` (SI), when not the
-    config's own (:func:`~qkf.transfer_alignment.judging.state_weights`).
+    config's own (:func:`~qkf.transfer_alignment.judging.state_weights`). ``cache``: take each
+    method's part from the results cache where it holds it, and store what is computed
+    (simulated trials only, without ``keep`` or ``weights``; :mod:`.chunk_cache`);
+    ``ChunkResult.cache`` says per method ``hit``, ``miss``, ``corrupt`` or ``off``.
     """
-    n = n_epochs(cfg.scenario)
-    sample = np.arange(0, n, kappa_sampling(cfg))
-    banded = band_epochs(n)
-    cov_epochs = covariance_epochs(cfg)
-    data = source(cfg, seed, ids)
-    # state_settled's, in display units
-    weights = (state_weights(cfg) if weights is None else weights) / DISPLAY_UNIT
     res = ChunkResult({}, {}, ids.size, {}, {}, {}, {})
+    store = (
+        ResultsCache()
+        if cache and source is simulate and keep is None and weights is None
+        else None
+    )
+    keys: dict[str, dict[str, object] | None] = {}
+    for m in methods:
+        keys[m.name] = None if store is None else chunk_key(cfg, m.method, seed, ids)
+        found = None
+        key = keys[m.name]
+        if store is not None and key is not None:
+            lookup = store.get(key)
+            found = lookup.entry
+            res.cache[m.name] = lookup.status
+            if lookup.status == "corrupt":
+                res.cache_problems.append(lookup.detail)
+        else:
+            res.cache[m.name] = "off"
+        if found is not None:
+            _set_parts(res, m.name, from_entry(found, m.name))
+    todo = [m for m in methods if res.cache[m.name] != "hit"]
+    if not todo:
+        if report is not None:
+            for m in methods:
+                report(m.name, ids, False)
+                report(m.name, ids, True)
+        return res
+    data = source(cfg, seed, ids)
     for m in methods:
         if report is not None:
             report(m.name, ids, False)
-        t0 = time.perf_counter()
-        out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
-        res.runtime_s[m.name] = time.perf_counter() - t0
-        if keep is not None:
-            keep(m.name, ids, out)
-        err = state_errors(out.est, data.q_true, data.bias, data.calib)
-        res.sum_sq[m.name] = np.sum(err * err, axis=0)
-        res.trial_ms[m.name] = trial_mean_squares(
-            err / DISPLAY_UNIT, data.t, cfg.run.settled_s, weights
-        )
-        res.diverged[m.name] = int(np.count_nonzero(out.diverged))
-        res.divergences[m.name] = find_divergences(m.name, out, data.t, ids)
-        res.kappa[m.name] = None if out.kappa is None else np.asarray(out.kappa)[:, sample]
-        res.notes[m.name] = dict(out.notes)
-        sq = (err[:, banded] / DISPLAY_UNIT) ** 2
-        groups = [np.mean(sq[..., sl], axis=-1) for sl in GROUPS.values()]
-        res.band_ms[m.name] = np.stack(groups, axis=-1)
-        res.nees_sum[m.name], res.nees_count[m.name] = None, np.zeros(cov_epochs.size, np.int64)
-        if out.cov is not None:
-            val = nees(err[:, cov_epochs], np.asarray(out.cov))  # (B, M); NaN: none or diverged
-            ok = np.isfinite(val) & ~np.asarray(out.diverged)[:, None]
-            res.nees_sum[m.name] = np.where(ok, val, 0.0).sum(axis=0)
-            res.nees_count[m.name] = ok.sum(axis=0)
+        if res.cache[m.name] != "hit":
+            parts = _method_parts(cfg, m, data, ids, keep, weights)
+            _set_parts(res, m.name, parts)
+            key = keys[m.name]
+            if store is not None and key is not None:
+                store.put(key, to_entry(parts))
         if report is not None:
             report(m.name, ids, True)
     return res
+
+
+def _method_parts(
+    cfg: Config,
+    m: NamedMethod,
+    data: ScenarioData,
+    ids: np.ndarray,
+    keep: KeepOutput | None,
+    weights: np.ndarray | None,
+) -> dict[str, object]:
+    """Run one method on a chunk's trials: its fields of :class:`ChunkResult`."""
+    n = n_epochs(cfg.scenario)
+    cov_epochs = covariance_epochs(cfg)
+    # state_settled's, in display units
+    w = (state_weights(cfg) if weights is None else weights) / DISPLAY_UNIT
+    t0 = time.perf_counter()
+    out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
+    runtime = time.perf_counter() - t0
+    if keep is not None:
+        keep(m.name, ids, out)
+    err = state_errors(out.est, data.q_true, data.bias, data.calib)
+    sq = (err[:, band_epochs(n)] / DISPLAY_UNIT) ** 2
+    nees_sum, nees_count = None, np.zeros(cov_epochs.size, np.int64)
+    if out.cov is not None:
+        val = nees(err[:, cov_epochs], np.asarray(out.cov))  # (B, M); NaN: none or diverged
+        ok = np.isfinite(val) & ~np.asarray(out.diverged)[:, None]
+        nees_sum, nees_count = np.where(ok, val, 0.0).sum(axis=0), ok.sum(axis=0)
+    return {
+        "sum_sq": np.sum(err * err, axis=0),
+        "trial_ms": trial_mean_squares(err / DISPLAY_UNIT, data.t, cfg.run.settled_s, w),
+        "band_ms": np.stack([np.mean(sq[..., sl], axis=-1) for sl in GROUPS.values()], axis=-1),
+        "kappa": None
+        if out.kappa is None
+        else np.asarray(out.kappa)[:, np.arange(0, n, kappa_sampling(cfg))],
+        "nees_sum": nees_sum,
+        "nees_count": nees_count,
+        "diverged": int(np.count_nonzero(out.diverged)),
+        "runtime_s": runtime,
+        "notes": dict(out.notes),
+        "divergences": find_divergences(m.name, out, data.t, ids),
+    }
+
+
+def _set_parts(res: ChunkResult, name: str, parts: dict[str, Any]) -> None:
+    res.sum_sq[name] = parts["sum_sq"]
+    res.trial_ms[name] = parts["trial_ms"]
+    res.band_ms[name] = parts["band_ms"]
+    res.kappa[name] = parts["kappa"]
+    res.nees_sum[name] = parts["nees_sum"]
+    res.nees_count[name] = parts["nees_count"]
+    res.diverged[name] = parts["diverged"]
+    res.runtime_s[name] = parts["runtime_s"]
+    res.notes[name] = parts["notes"]
+    res.divergences[name] = parts["divergences"]
 
 
 def _bar_label(labels: list[str], backend: str, workers: int) -> str:
@@ -272,6 +346,7 @@ def run_benchmark(
     keep: KeepOutput | None = None,
     bound: CrlbResult | None = None,
     weights: np.ndarray | None = None,
+    cache: bool = False,
 ) -> BenchResult:
     """Run every method on the same ``trials`` Monte Carlo trials of ``cfg``'s scenario.
 
@@ -284,8 +359,12 @@ def run_benchmark(
     ``source`` / ``keep``: recorded data instead of simulated trials, and a hook that sees
     every method's output (:data:`DataSource`, :data:`KeepOutput`; in this process only);
     ``bound`` / ``weights``: the CRLB of the report and the ``state_settled`` weights (SI),
-    when not those of ``cfg``'s simulated scenario (recorded data).
+    when not those of ``cfg``'s simulated scenario (recorded data). ``cache``: reuse and store
+    each method's results per chunk (:mod:`.chunk_cache`; off where ``$QKF_NO_CACHE`` is
+    set); ``BenchResult.cache`` counts the hits and misses, and a damaged entry found on the
+    way is reported by a :class:`CacheWarning` and recomputed.
     """
+    cache = cache_enabled(cache)
     trials = cfg.run.trials if trials is None else trials
     seed = cfg.run.seed if seed is None else seed
     workers = cfg.run.workers if workers is None else workers
@@ -334,13 +413,21 @@ def run_benchmark(
                 source=source,
                 keep=keep,
                 weights=weights,
+                cache=cache,
             )
             if in_process
-            else partial(run_chunk, cfg, prepared, seed, source=source, weights=weights)
+            else partial(
+                run_chunk, cfg, prepared, seed, source=source, weights=weights, cache=cache
+            )
         )
+        cache_counts = {m: dict.fromkeys(("hit", "miss", "corrupt", "off"), 0) for m in labels}
         done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
+            for problem in res.cache_problems:
+                warnings.warn(f"damaged results-cache entry, recomputed: {problem}", CacheWarning,
+                              stacklevel=2)  # fmt: skip
             for m in labels:
+                cache_counts[m][res.cache[m]] += 1
                 acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
                 runtime[m] += res.runtime_s[m]
                 trial_ms[m].append(res.trial_ms[m])
@@ -418,6 +505,7 @@ def run_benchmark(
         band_t=t[band_epochs(n)],
         nees_t=nees_t,
         weights=weights,
+        cache=cache_counts,
     )
 
 

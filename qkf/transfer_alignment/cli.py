@@ -18,6 +18,7 @@ from rich.markup import escape
 
 from qkf.core.cli_support import (
     BackendOption,
+    NoCacheOption,
     OverwriteOption,
     SetOption,
     backend_options,
@@ -144,6 +145,7 @@ def bench_cmd(
             "config: recorded.ignore_columns).",
         ),
     ] = None,
+    no_cache: NoCacheOption = False,
 ) -> None:
     """Monte Carlo comparison of methods: rms.csv, summary.csv, summary.md, crlb.csv, plots,
     run.json. --out must be new, empty or (with --overwrite) an earlier bench run, which is
@@ -218,7 +220,7 @@ def bench_cmd(
         folder = out_dir(out_path, "bench", overwrite)
     else:
         folder = Path(out_path)  # the sweep's folder: checked by run_sweep (prepare_output)
-    bench = {"progress": not quiet, "backend": backend, "workers": workers}
+    bench = {"progress": not quiet, "backend": backend, "workers": workers, "cache": not no_cache}
 
     diverged_cases: list[Path] = []
 
@@ -455,6 +457,7 @@ def study_cmd(
         bool, typer.Option(help="Finish an interrupted study in --out (finished cases kept).")
     ] = False,
     overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
+    no_cache: NoCacheOption = False,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png,
     run.json. A families study (qkf study families) writes families.csv, families.md and
@@ -530,7 +533,7 @@ def study_cmd(
         written = run_study(
             study, out_path, not quiet, resume, overwrite, on_case,
             trials=trials, sets=list(set_ or []), on_start=on_start, families=chosen,
-            extra_methods=added, seed=seed,
+            extra_methods=added, seed=seed, cache=not no_cache,
         )  # fmt: skip
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None

@@ -480,12 +480,18 @@ class HindsightConfig(StrictModel):
     ``focus_s``: a block length shorter than it is tried only within ``focus_s`` of a switch
     of the trial's schedule (where the κ changes), as the longer lengths left it; ``null``
     tries every block at every length (about four times the cost with the default blocks).
+
+    ``screen_s``: run each candidate only this long past its block, and carry on to the end of
+    the run only the ``screen_keep`` best of each trial by then; ``null`` runs every candidate
+    to the end (exact coordinate descent, slower).
     """
 
     period_s: PositiveFloat = 10.0  # the agents' decision period
     blocks_s: list[PositiveFloat] = Field(default=[400.0, 200.0, 100.0, 50.0, 20.0], min_length=1)
     passes: Annotated[int, Field(ge=1, le=100)] = 1  # sweeps per block length
     focus_s: PositiveFloat | None = 100.0
+    screen_s: PositiveFloat | None = None
+    screen_keep: Annotated[int, Field(ge=1, le=1000)] = 3
 
     @model_validator(mode="after")
     def _whole_periods(self) -> HindsightConfig:

@@ -597,6 +597,7 @@ def bench_manifest(res: BenchResult, command: list[str] | None = None) -> dict[s
         seed=res.seed,
         backend=res.backend,
         workers=res.workers,
+        cache=res.cache,
     )
 
 

@@ -153,12 +153,14 @@ def run_case(
     progress: bool = True,
     backend: str = "local",
     workers: int | None = None,
+    cache: bool = False,
 ) -> CaseResult:
-    """The CRLB of a case and, unless ``methods`` is None, its Monte Carlo benchmark."""
+    """The CRLB of a case and, unless ``methods`` is None, its Monte Carlo benchmark
+    (``cache``: that of :func:`run_benchmark`)."""
     bound = crlb(case.cfg)
     if methods is None:
         return CaseResult(case, bound, None)
-    res = run_benchmark(case.cfg, methods, trials, seed, progress, backend, workers)
+    res = run_benchmark(case.cfg, methods, trials, seed, progress, backend, workers, cache=cache)
     return CaseResult(case, bound, res)
 
 
@@ -565,12 +567,14 @@ def run_study(
     extra_methods: list[str] | None = None,
     seed: int | None = None,
     base_methods: list[str] | None = None,
+    cache: bool = False,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
     ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
     ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied to every case after
     its own (both recorded in run.json, and in each case's manifest); ``families``,
-    ``extra_methods``, ``seed``, ``base_methods``: see :func:`load_study`."""
+    ``extra_methods``, ``seed``, ``base_methods``: see :func:`load_study`; ``cache``: reuse
+    results from the results cache (docs/caching.md)."""
     study, configs = load_study(
         path, sets, families=families, methods=extra_methods, seed=seed,
         base_methods=base_methods,
@@ -598,8 +602,9 @@ def run_study(
 
         record()
         results = run_cases(
-            cases, methods, where, n, study.seed, resume, after, on_start, progress=progress
-        )
+            cases, methods, where, n, study.seed, resume, after, on_start, progress=progress,
+            cache=cache,
+        )  # fmt: skip
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
         level = configs[0].run.bootstrap.level

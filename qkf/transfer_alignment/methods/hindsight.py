@@ -77,6 +77,8 @@ def hindsight_plan(cfg: Config) -> SearchPlan:
             reach if hc.focus_s is not None and n * period_s < hc.focus_s - 1e-9 else None
             for n in blocks
         ),
+        screen=None if hc.screen_s is None else decision_steps(hc.screen_s, cfg.scenario.dt_s),
+        keep=hc.screen_keep,
     )
 
 
@@ -87,7 +89,8 @@ def convergence_note(res: SearchResult, metric: str, n_actions: int) -> str:
     b = res.scores.shape[0]
     return (
         f"per-trial best κ schedule with the truth known ({n_actions} actions); mean {metric} "
-        f"{means}; {res.runs / b:.0f} rollouts, {res.trial_epochs / b:.3g} trial-epochs, "
+        f"{means}; {res.runs / b:.0f} rollouts ({res.stopped / b:.0f} stopped once they could "
+        f"not win), {res.trial_epochs / b:.3g} trial-epochs, "
         f"{res.seconds / b:.1f} s per trial (a yardstick, not a flight method)"
     )
 

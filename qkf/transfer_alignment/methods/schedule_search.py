@@ -43,6 +43,7 @@ algebra because the search evaluates millions of epochs; the scores agree with
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -71,7 +72,14 @@ class SearchPlan:
     for all trials (else one per trial); ``metric``: the judged metric
     (:func:`~qkf.transfer_alignment.judging.trial_scores`); ``focus``: per block length,
     ``None`` (every block) or a reach in periods: only blocks within it of a switch of the
-    incumbent (lengths beyond the tuple: every block).
+    incumbent (lengths beyond the tuple: every block); ``stop_early``: in a per-trial search,
+    stop a candidate as soon as it cannot beat its trial's incumbent (the same result, fewer
+    epochs filtered; :meth:`_Search.rollout`); ``screen``: in a per-trial search, run every
+    candidate only ``screen`` epochs past its block, then carry on to the end only the
+    ``keep`` of each trial whose sums are lowest by then (None: every candidate to the end).
+    Screening is a heuristic: a candidate behind at the screen and ahead at the end is missed
+    (the filter forgets the block's κ within a few hundred seconds, so it is rare; measured in
+    docs/methods.md, "Hindsight").
     """
 
     period: int
@@ -80,6 +88,9 @@ class SearchPlan:
     pooled: bool = False
     metric: str = STATE_METRIC
     focus: tuple[int | None, ...] = ()
+    stop_early: bool = True
+    screen: int | None = None
+    keep: int = 3
 
 
 @dataclass
@@ -91,7 +102,8 @@ class SearchResult:
     per sweep; ``scores`` (B, S): each trial's score after each stage (the metric's units);
     ``runs``: rollouts (one trial and candidate from a block start to the end of the run);
     ``trial_epochs``: filter trial-epochs spent (rollouts and the carried incumbent);
-    ``seconds``: wall time.
+    ``seconds``: wall time; ``stopped``: rollouts stopped before the end of the run because
+    they could no longer beat the incumbent.
     """
 
     choice: np.ndarray
@@ -101,6 +113,8 @@ class SearchResult:
     runs: int
     trial_epochs: int
     seconds: float
+    stopped: int = 0
+    screened: int = 0
 
     def pooled_scores(self) -> np.ndarray:
         """RMS over trials of the score after each stage (S,)."""
@@ -190,6 +204,8 @@ class _Search:
         self.period_of = np.arange(n) // plan.period  # period index of each epoch
         self.runs = 0
         self.trial_epochs = 0
+        self.stopped = 0  # candidate rollouts stopped early (they could not beat the incumbent)
+        self.screened = 0  # candidate rollouts dropped at the screen (plan.screen)
 
     # --- filter runs -------------------------------------------------------------------
 
@@ -205,10 +221,24 @@ class _Search:
         return d.gyro[trials, sl], d.ads_q[trials, sl], d.ads_rate[trials, sl], meas
 
     def rollout(
-        self, carry: TransferAlignmentKF, trials: np.ndarray, sched: np.ndarray, start: int
+        self,
+        carry: TransferAlignmentKF,
+        trials: np.ndarray,
+        sched: np.ndarray,
+        start: int,
+        stop_at: tuple[np.ndarray, np.ndarray] | None = None,
+        screen_at: int | None = None,
     ) -> np.ndarray:
         """``S`` over the settled epochs in ``[start, N)`` of rows that start from the carried
         filter's trial ``trials[r]`` (rows of a trial adjacent) and follow ``sched[r]`` (R, T).
+
+        ``stop_at = (offset, bound)`` (R,) each: a row is stopped, and its ``S`` is ``inf``, as
+        soon as ``offset + S`` so far reaches ``bound`` (checked between chunks of epochs).
+        ``S`` only grows, and the sum and the score are monotone in floating point, so a
+        stopped row could not have ended below ``bound``: a search that stops candidates at
+        the incumbent's ``S`` takes exactly the decisions it takes without stopping them.
+        ``screen_at``: the epoch at which each trial keeps only its ``plan.keep`` rows of
+        lowest ``S`` so far (the others: ``inf``).
         """
         rows, n = trials.size, self.data.n_epochs
         kf = TransferAlignmentKF(carry.params, rows)
@@ -218,14 +248,40 @@ class _Search:
             b = int(trials[r0])
             kf.load_trial(slice(r0, r1), carry, slice(b, b + 1))
         total = np.zeros(rows)
+        live = np.arange(rows)  # the row of each filter row (rows stopped early drop out)
         chunk = int(np.clip(ROW_EPOCHS // rows, 50, 600))
-        for k0 in range(start, n, chunk):
-            k1 = min(n, k0 + chunk)
-            rec = kf.step(*self._inputs(trials, k0, k1), self._kappa(sched, k0, k1))
-            total += self.scorer.chunk(rec.est, trials, k0)
-        total[kf.diverged] = np.nan
+        cuts = set(range(start, n, chunk)) | {n}
+        if screen_at is not None and start < screen_at < n:
+            cuts.add(screen_at)
+        bounds = sorted(cuts)
+        for k0, k1 in itertools.pairwise(bounds):
+            on = trials[live]
+            rec = kf.step(*self._inputs(on, k0, k1), self._kappa(sched[live], k0, k1))
+            total[live] += self.scorer.chunk(rec.est, on, k0)
+            self.trial_epochs += live.size * (k1 - k0)
+            if k1 == n:
+                break
+            over = np.zeros(live.size, dtype=bool)
+            if stop_at is not None:
+                offset, bound = stop_at
+                over = offset[live] + total[live] >= bound[live]  # False for NaN: never stopped
+            if k1 == screen_at:
+                behind = ~_lowest_per_group(on, total[live], self.plan.keep)
+                self.screened += int((behind & ~over).sum())
+                over |= behind
+            if over.any():
+                total[live[over]] = np.inf
+                self.stopped += int(over.sum())
+                keep = np.flatnonzero(~over)
+                live = live[keep]
+                if live.size == 0:
+                    break
+                rest = TransferAlignmentKF(carry.params, live.size)
+                rest.load_trial(slice(None), kf, keep)  # type: ignore[arg-type]
+                kf = rest
+        if live.size:
+            total[live[kf.diverged]] = np.nan
         self.runs += rows
-        self.trial_epochs += rows * (n - start)
         return total
 
     def advance(
@@ -251,29 +307,37 @@ class _Search:
         better = cand[np.arange(cand.shape[0]), best] < incumbent
         return np.where(better, best, -1)
 
-    def start(self, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def start(self, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The best of the constant schedules and ``starts`` (each (B, T) action indices):
-        ``(choice (B, T), scores (B,))``."""
+        ``(choice (B, T), scores (B,), S (B,))``."""
         b, t, a = self.data.n_trials, self.n_periods, self.values.size
         options = [np.full((b, t), i) for i in range(a)] + [np.asarray(s) for s in starts]
         o = len(options)
         trials = np.repeat(np.arange(b), o)  # trial-major: a trial's rows adjacent
         sched = np.stack(options, axis=1).reshape(b * o, t)
         carry = new_filter(self.cfg, self.data)
-        cand = self.scorer.score(self.rollout(carry, trials, sched, 0)).reshape(b, o)
+        total = self.rollout(carry, trials, sched, 0).reshape(b, o)
+        cand = self.scorer.score(total)
         if self.plan.pooled:
             best = np.full(b, int(np.argmin([pooled(cand[:, i]) for i in range(o)])))
         else:
             best = np.argmin(cand, axis=1)
         rows = np.arange(b)
-        return np.stack(options, axis=1)[rows, best], cand[rows, best]
+        return np.stack(options, axis=1)[rows, best], cand[rows, best], total[rows, best]
 
     def sweep(
-        self, choice: np.ndarray, score: np.ndarray, length: int, want: np.ndarray
+        self,
+        choice: np.ndarray,
+        score: np.ndarray,
+        total: np.ndarray,
+        length: int,
+        want: np.ndarray,
     ) -> np.ndarray:
-        """One pass over the blocks of ``length`` periods, in place on ``choice`` and
-        ``score``; trial ``i`` tries a block only if ``want[i]`` (B, T) holds for one of its
-        periods. Returns which trials changed (B,)."""
+        """One pass over the blocks of ``length`` periods, in place on ``choice``, ``score``
+        and the incumbents' ``S`` (``total``); trial ``i`` tries a block only if ``want[i]``
+        (B, T) holds for one of its periods. Returns which trials changed (B,). In a
+        per-trial search a candidate stops as soon as it cannot beat its trial's incumbent
+        (:meth:`rollout`)."""
         b, a, p = self.data.n_trials, self.values.size, self.plan.period
         n = self.data.n_epochs
         changed = np.zeros(b, dtype=bool)
@@ -291,18 +355,37 @@ class _Search:
             if trials.size:
                 sched = choice[trials].copy()
                 sched[:, p0:p1] = actions[:, None]
-                total = prefix[trials] + self.rollout(carry, trials, sched, k0)
+                early = self.plan.stop_early and not self.plan.pooled
+                stop_at = (prefix[trials], total[trials]) if early else None
+                screen = self.plan.screen
+                screen_at = None if screen is None or self.plan.pooled else k1 + screen
+                tried = prefix[trials] + self.rollout(carry, trials, sched, k0, stop_at, screen_at)
                 cand = np.full((b, a), np.inf)
-                cand[trials, actions] = self.scorer.score(total)
+                cand[trials, actions] = self.scorer.score(tried)
+                sums = np.full((b, a), np.nan)
+                sums[trials, actions] = tried
                 if self.plan.pooled:  # every trial needs its row for a pooled score
                     cand[:, ~run.all(axis=0)] = np.inf
                 take = self.pick(cand, score)
                 for i in np.flatnonzero(take >= 0):
                     choice[i, p0:p1] = take[i]
                     score[i] = cand[i, take[i]]
+                    total[i] = sums[i, take[i]]
                     changed[i] = True
             prefix += self.advance(carry, choice, k0, k1)
         return changed
+
+
+def _lowest_per_group(groups: np.ndarray, values: np.ndarray, keep: int) -> np.ndarray:
+    """Per row, whether it is among the ``keep`` lowest ``values`` of its group (rows of a
+    group adjacent; ties: the earlier row; NaN, a lost row, ranks last)."""
+    order = np.lexsort((np.arange(values.size), np.nan_to_num(values, nan=np.inf), groups))
+    ranked = groups[order]
+    starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
+    rank = np.arange(values.size) - np.repeat(starts, np.diff(np.r_[starts, values.size]))
+    out = np.empty(values.size, dtype=bool)
+    out[order] = rank < keep
+    return out
 
 
 def switches(row: np.ndarray, reach: int) -> np.ndarray:
@@ -343,7 +426,7 @@ def search(
         if progress_label
         else _no_progress
     )
-    choice, score = s.start(grid)
+    choice, score, total = s.start(grid)
     stages, scores = ["start"], [score.copy()]
     advance(1)
     for level, length in enumerate(plan.blocks):
@@ -356,7 +439,7 @@ def search(
             want = np.stack([switches(row, reach) for row in choice])
         for rep in range(plan.passes):
             if want.any():
-                changed = s.sweep(choice, score, length, want)
+                changed = s.sweep(choice, score, total, length, want)
                 # a trial that a pass left unchanged would only repeat it exactly
                 want &= changed[:, None]
             stages.append(f"{length * plan.period * data.dt:g} s #{rep + 1}")
@@ -370,6 +453,8 @@ def search(
         runs=s.runs,
         trial_epochs=s.trial_epochs,
         seconds=time.perf_counter() - t0,
+        stopped=s.stopped,
+        screened=s.screened,
     )
 
 

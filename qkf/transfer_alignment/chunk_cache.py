@@ -1,0 +1,112 @@
+"""What one method contributes to one chunk of a benchmark, kept in the results cache.
+
+:func:`~qkf.transfer_alignment.benchmark.run_chunk` asks here before running a method on a
+chunk of simulated trials (docs/caching.md). The key holds everything the contribution depends
+on:
+
+* ``code``: :func:`~qkf.core.results_cache.code_fingerprint` of the package (and of the
+  packages a method names through its own ``cache_token``, a policy's);
+* ``config``: the resolved config, less what only says how the run is carried out or reported
+  (``run.trials``, ``run.seed``, ``run.workers``, ``run.ray_address``, ``run.chunk_trials``,
+  ``run.bootstrap``, ``run.baseline``, ``name``, ``description``): the seed and the trials are
+  keyed on their own;
+* ``method``: the prepared method as :func:`~qkf.core.results_cache.describe` gives it (a tuned
+  method with its tuned values; a policy with its model file's SHA-256);
+* ``seed`` and ``trials``: the chunk's trial ids.
+
+A method that cannot be described (code from outside the package, with no ``cache_token``) is
+run every time. Simulated trials only: recorded data are not cached.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qkf.core.results_cache import Entry, code_fingerprint, describe
+from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.divergence import Divergence
+
+PACKAGE = Path(__file__).resolve().parents[1]
+"""The ``qkf`` package folder: its sources name the code of every built-in method."""
+
+KEY_VERSION = 1
+"""Bumped when what a chunk entry holds changes."""
+
+_RUN_ONLY = ("trials", "seed", "workers", "ray_address", "chunk_trials", "bootstrap", "baseline")
+
+ARRAYS = ("sum_sq", "trial_ms", "band_ms", "kappa", "nees_sum", "nees_count")
+"""The per-method arrays of a :class:`~qkf.transfer_alignment.benchmark.ChunkResult`
+(``kappa`` and ``nees_sum`` may be None)."""
+
+
+def config_key(cfg: Config) -> dict[str, Any]:
+    """The config as it bears on a method's results (module docstring)."""
+    data = cfg.model_dump(mode="json")
+    for name in ("name", "description"):
+        data.pop(name, None)
+    run = data.get("run", {})
+    for name in _RUN_ONLY:
+        run.pop(name, None)
+    return data
+
+
+def chunk_key(cfg: Config, method: object, seed: int, ids: np.ndarray) -> dict[str, Any] | None:
+    """The key of ``method`` on trials ``ids`` of ``seed``; None if the method cannot be
+    described (then it is not cached)."""
+    token = describe(method)
+    if token is None:
+        return None
+    return {
+        "kind": "transfer_alignment.chunk",
+        "version": KEY_VERSION,
+        "code": code_fingerprint([PACKAGE]),
+        "config": config_key(cfg),
+        "method": token,
+        "seed": int(seed),
+        "trials": [int(i) for i in ids],
+    }
+
+
+def to_entry(parts: dict[str, Any]) -> Entry:
+    """An entry from one method's part of a chunk (the fields of ``ChunkResult`` for it)."""
+    arrays = {name: parts[name] for name in ARRAYS if parts[name] is not None}
+    divergences = [
+        {
+            "trial": d.trial,
+            "epoch": d.epoch,
+            "t_s": None if math.isnan(d.t_s) else d.t_s,
+            "cause": d.cause,
+        }
+        for d in parts["divergences"]
+    ]
+    meta = {
+        "diverged": int(parts["diverged"]),
+        "runtime_s": float(parts["runtime_s"]),
+        "notes": dict(parts["notes"]),
+        "divergences": divergences,
+    }
+    return Entry(arrays, meta)
+
+
+def from_entry(entry: Entry, label: str) -> dict[str, Any]:
+    """One method's part of a chunk, reported under ``label``, from its entry."""
+    meta = entry.meta
+    parts: dict[str, Any] = {name: entry.arrays.get(name) for name in ARRAYS}
+    parts["diverged"] = int(meta["diverged"])
+    parts["runtime_s"] = float(meta["runtime_s"])
+    parts["notes"] = {str(k): str(v) for k, v in meta["notes"].items()}
+    parts["divergences"] = [
+        Divergence(
+            label,
+            int(d["trial"]),
+            int(d["epoch"]),
+            math.nan if d["t_s"] is None else float(d["t_s"]),
+            str(d["cause"]),
+        )
+        for d in meta["divergences"]
+    ]
+    return parts
