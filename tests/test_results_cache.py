@@ -48,23 +48,28 @@ def _bench(methods: str, *sets: str, cache: bool = True):  # type: ignore[no-unt
     return run_benchmark(cfg, methods, trials=3, seed=7, progress=False, cache=cache)
 
 
-# One method of each kind: a plain function (kf), the compiled filter bank (imm), a tuned
-# method with its tuned values (kf-tuned), a yardstick object (hindsight), the batch solver,
-# and a saved policy.
-KINDS = ["kf", "imm", "kf-tuned", "hindsight", "batch", f"policy:{POLICY}"]
+# One method of each kind: a plain function (kf), the compiled filter bank (imm), methods
+# tuned on the tuning seeds (kf-tuned, clock: their tuning is cached too), a yardstick object
+# (hindsight), the batch solver, and a saved policy.
+KINDS = ["kf", "imm", "kf-tuned", "clock", "hindsight", "batch", f"policy:{POLICY}"]
+TUNED = ("kf-tuned", "clock")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", KINDS)
 def test_a_cached_result_is_the_fresh_one_byte_for_byte(cache_dir: Path, method: str) -> None:
-    sets = ("adaptive.tuned.trials=2",) if method == "kf-tuned" else ()
+    sets = ("adaptive.tuned.trials=2",) if method in TUNED else ()
     fresh = _bench(method, *sets, cache=False)
     stored = _bench(method, *sets)  # computes and stores
     served = _bench(method, *sets)  # reads back
     name = fresh.methods[0].name
-    assert stored.cache[name] == {"hit": 0, "miss": 2, "corrupt": 0, "off": 0}
-    assert served.cache[name] == {"hit": 2, "miss": 0, "corrupt": 0, "off": 0}
+    chunks = ("hit", "miss", "corrupt", "off")
+    assert [stored.cache[name][k] for k in chunks] == [0, 2, 0, 0]
+    assert [served.cache[name][k] for k in chunks] == [2, 0, 0, 0]
     assert fresh.cache[name]["off"] == 2
+    if method in TUNED:  # the tuning on the tuning seeds is cached too
+        assert stored.cache[name]["prepare_miss"] == served.cache[name]["prepare_hit"] == 1
+        assert "prepare_hit" not in fresh.cache[name]
     # every file of the run, byte for byte; run times are the computing run's, so the stored
     # run and the served one agree on them too, and the fresh one only on everything else
     assert _tables(served) == _tables(stored)
@@ -170,3 +175,23 @@ def test_cache_info_and_clear_touch_only_entries(cache_dir: Path) -> None:
     assert cleared.exit_code == 0, cleared.output
     assert "removed 2" in cleared.output
     assert ResultsCache().entries() == [] and foreign.exists()
+
+
+def test_qkf_bench_uses_the_cache_and_run_json_counts_it(cache_dir: Path, tmp_path: Path) -> None:
+    import json
+
+    runner = CliRunner()
+    args = ["bench", "paper", "--methods", "kf", "--trials", "2", "--quiet",
+            "--set", "scenario.duration_s=500", "--set", "run.settled_s=300"]  # fmt: skip
+    counts = []
+    for i, extra in enumerate(([], [], ["--no-cache"])):
+        out = tmp_path / f"run{i}"
+        result = runner.invoke(app, [*args, *extra, "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        counts.append(json.loads((out / "run.json").read_text())["cache"]["kf"])
+    assert [c["miss"] for c in counts] == [1, 0, 0]
+    assert [c["hit"] for c in counts] == [0, 1, 0]
+    assert counts[2]["off"] == 1
+    for name in ("trials.csv", "rms.csv"):
+        assert (tmp_path / "run0" / name).read_bytes() == (tmp_path / "run1" / name).read_bytes()
+        assert (tmp_path / "run0" / name).read_bytes() == (tmp_path / "run2" / name).read_bytes()

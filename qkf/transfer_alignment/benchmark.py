@@ -31,7 +31,7 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
-from qkf.transfer_alignment.chunk_cache import chunk_key, from_entry, to_entry
+from qkf.transfer_alignment.chunk_cache import cached_prepare, chunk_key, from_entry, to_entry
 from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
@@ -41,7 +41,6 @@ from qkf.transfer_alignment.methods import (
     MethodOutput,
     MethodSpecError,
     NamedMethod,
-    prepare,
     resolve_method,
     resolve_method_settings,
     validate_output,
@@ -401,7 +400,11 @@ def run_benchmark(
     with progress_bar(trials * len(labels), label, progress, "method-trials") as bar:
         bar.note("preparing methods")
         # inside the bar: a method's tuning in prepare() shows as its own counted row
-        prepared = [NamedMethod(m.name, prepare(m.method, cfg)) for m in named]
+        prepared = []
+        prepare_cache: dict[str, str] = {}
+        for m in named:
+            method, prepare_cache[m.name] = cached_prepare(m.method, cfg, cache)
+            prepared.append(NamedMethod(m.name, method))
         bar.note(None if in_process else f"0/{trials} trials")
         task = (
             partial(
@@ -421,6 +424,12 @@ def run_benchmark(
             )
         )
         cache_counts = {m: dict.fromkeys(("hit", "miss", "corrupt", "off"), 0) for m in labels}
+        for m, status in prepare_cache.items():  # the preparation counts as one lookup
+            if status != "off":
+                cache_counts[m][f"prepare_{status}"] = 1
+            if status == "corrupt":
+                warnings.warn(f"damaged results-cache entry of {m}'s preparation, recomputed",
+                              CacheWarning, stacklevel=2)  # fmt: skip
         done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
             for problem in res.cache_problems:

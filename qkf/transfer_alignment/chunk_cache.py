@@ -16,19 +16,25 @@ on:
 
 A method that cannot be described (code from outside the package, with no ``cache_token``) is
 run every time. Simulated trials only: recorded data are not cached.
+
+A method's preparation (``prepare(cfg)``: kf-tuned's κ, the clock's and the oracle's schedules,
+the tuned values of the ``-tuned`` methods, all tuned on the tuning seeds) is cached the same way
+(:func:`cached_prepare`), keyed by the code, the config and the unprepared method.
 """
 
 from __future__ import annotations
 
 import math
+import pickle
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from qkf.core.results_cache import Entry, code_fingerprint, describe
+from qkf.core.results_cache import Entry, ResultsCache, code_fingerprint, describe
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.divergence import Divergence
+from qkf.transfer_alignment.methods.base import Method, prepare
 
 PACKAGE = Path(__file__).resolve().parents[1]
 """The ``qkf`` package folder: its sources name the code of every built-in method."""
@@ -110,3 +116,42 @@ def from_entry(entry: Entry, label: str) -> dict[str, Any]:
         for d in meta["divergences"]
     ]
     return parts
+
+
+def prepare_key(cfg: Config, method: object) -> dict[str, Any] | None:
+    """The key of ``method.prepare(cfg)`` (its tuning on the tuning seeds): the code, the
+    config as it bears on results, and the unprepared method; None if it cannot be described."""
+    token = describe(method)
+    if token is None:
+        return None
+    return {
+        "kind": "transfer_alignment.prepare",
+        "version": KEY_VERSION,
+        "code": code_fingerprint([PACKAGE]),
+        "config": config_key(cfg),
+        "method": token,
+    }
+
+
+def cached_prepare(method: Method, cfg: Config, cache: bool) -> tuple[Method, str]:
+    """``prepare(method, cfg)``, from the results cache where it holds it (``cache``), and what
+    happened: ``hit``, ``miss``, ``corrupt``, or ``off`` (nothing to prepare, not cached, or
+    a method that cannot be described). The prepared method is kept pickled: it is what the
+    workers receive anyway; an entry that does not unpickle counts as damaged."""
+    if not callable(getattr(method, "prepare", None)):
+        return method, "off"
+    key = prepare_key(cfg, method) if cache else None
+    if key is None:
+        return prepare(method, cfg), "off"
+    store = ResultsCache()
+    lookup = store.get(key)
+    status = lookup.status
+    if lookup.entry is not None:
+        try:
+            return pickle.loads(lookup.entry.arrays["pickle"].tobytes()), "hit"
+        except Exception:  # a damaged pickle behind an intact checksum: recompute
+            status = "corrupt"
+    prepared = prepare(method, cfg)
+    blob = np.frombuffer(pickle.dumps(prepared, protocol=5), dtype=np.uint8)
+    store.put(key, Entry({"pickle": blob}))
+    return prepared, status
