@@ -238,6 +238,13 @@ def zoo_evaluate_cmd(
         ),
     ] = False,
     no_cache: NoCacheOption = False,
+    baselines: Annotated[
+        str | None,
+        typer.Option(
+            help="Judge against only these baselines of zoo.yaml (comma-separated labels, e.g. "
+            "kf-tuned,glr): a quick look; the card then shows only them."
+        ),
+    ] = None,
 ) -> None:
     """Judge every trained seed against the baselines and the oracle on held-out benchmark
     seeds and, with a families: section in zoo.yaml, on the scenario families (qkf study
@@ -262,6 +269,7 @@ def zoo_evaluate_cmd(
         card = evaluate_entry(
             entry, folder, trials, not quiet, lambda m: out.print(m), update_entry,
             cache=not no_cache,
+            baselines=None if baselines is None else [b.strip() for b in baselines.split(",")],
         )  # fmt: skip
     except (ConfigError, FileNotFoundError, OutputError, MethodOutputError) as exc:
         raise fail(str(exc)) from None

@@ -156,8 +156,11 @@ def test_method_specs() -> None:
         resolve_method("no_such_module_xyz:run")
     with pytest.raises(MethodSpecError, match="no such model file"):
         resolve_method("policy:/nonexistent/model.zip")
+    # one method named twice runs once; one label for two methods is refused
+    once = run_benchmark(cfg_with(*SETS), ["kf", "kf"], trials=1, progress=False)
+    assert [m.name for m in once.methods] == ["kf"]
     with pytest.raises(MethodSpecError, match="given twice"):
-        run_benchmark(cfg_with(*SETS), ["kf", "kf"], trials=1, progress=False)
+        run_benchmark(cfg_with(*SETS), ["a=kf", "a=imm"], trials=1, progress=False)
 
 
 def test_registry() -> None:

@@ -94,7 +94,7 @@ def test_plot_redraws_every_figure_from_the_files(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "needles"),
     [
-        (["--methods", "kf,kf"], ["given twice"]),
+        (["--methods", "a=kf,a=imm"], ["given twice"]),
         (["--methods", "policy:/nonexistent/model.zip"], ["no such model file"]),
         (["--methods", "nosuch"], ["unknown method 'nosuch'"]),
         (["--trials", "0"], ["--trials"]),

@@ -104,18 +104,44 @@ class FamiliesRun:
     sets: list[str]  # --set overrides of every family
 
 
-def families_run(entry: ZooEntry, trials: int | None) -> FamiliesRun:
-    """The entry's families study; ``trials`` replaces the section's own."""
+def families_run(
+    entry: ZooEntry, trials: int | None, baselines: list[str] | None = None
+) -> FamiliesRun:
+    """The entry's families study; ``trials`` replaces the section's own; ``baselines``: only
+    these of the section's baselines (``ConfigError`` for one it does not have)."""
+    from qkf.transfer_alignment.study import pick_baselines
+
     fam = entry.spec.families
     if fam is None:
         raise ConfigError(f"{entry.folder / 'zoo.yaml'}: no families: section")
+    kept = list(fam.baselines)
+    if baselines is not None:
+        try:
+            kept = pick_baselines(kept, baselines)
+        except ConfigError as exc:
+            raise ConfigError(f"{entry.folder / 'zoo.yaml'}: families: {exc}") from None
     return FamiliesRun(
-        list(fam.families), list(fam.baselines), family_policies(entry), fam.seed,
+        list(fam.families), kept, family_policies(entry), fam.seed,
         trials or fam.trials, list(fam.overrides),
     )  # fmt: skip
 
 
-def check_families(entry: ZooEntry, work: Path, trials: int | None) -> None:
+def case_baselines(entry: ZooEntry, case: JudgeCase, baselines: list[str] | None) -> list[str]:
+    """A judging case's baselines, only ``baselines`` among them if given (``ConfigError`` for
+    one the case does not have)."""
+    from qkf.transfer_alignment.study import pick_baselines
+
+    if baselines is None:
+        return list(case.baselines)
+    try:
+        return pick_baselines(list(case.baselines), baselines)
+    except ConfigError as exc:
+        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: {case.scenario}: {exc}") from None
+
+
+def check_families(
+    entry: ZooEntry, work: Path, trials: int | None, baselines: list[str] | None = None
+) -> None:
     """Everything the families study would refuse, checked before any work (``ConfigError``):
     the entry's name as a method label, the study (families, methods, seed, every family's
     config with the overrides), the workload, and ``WORK/families/`` (empty, or an earlier
@@ -128,7 +154,7 @@ def check_families(entry: ZooEntry, work: Path, trials: int | None) -> None:
             f"{entry.folder}: the entry's name {entry.name!r} labels its policies in the "
             "families study (NAME#SEED); use letters, digits, '_', '.', '-' only"
         )
-    run = families_run(entry, trials)
+    run = families_run(entry, trials, baselines)
     where = f"{entry.folder / 'zoo.yaml'}: families"
     try:
         study, configs = load_study(
@@ -199,14 +225,20 @@ def evaluate_case(
     trials: int | None,
     progress: bool,
     cache: bool = False,
+    baselines: list[str] | None = None,
 ) -> Path:
-    """One judging benchmark; returns its bench folder (in the work folder)."""
+    """One judging benchmark; returns its bench folder (in the work folder). ``baselines``:
+    only these of the case's baselines."""
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.config import load_config
     from qkf.transfer_alignment.report import write_bench
 
     cfg = load_config(case.scenario, list(case.overrides))
-    specs = [*case.baselines, *(["oracle"] if case.oracle else []), *policy_methods(entry)]
+    specs = [
+        *case_baselines(entry, case, baselines),
+        *(["oracle"] if case.oracle else []),
+        *policy_methods(entry),
+    ]
     res = run_benchmark(
         cfg,
         parse_methods(",".join(specs)),
@@ -227,13 +259,14 @@ def evaluate_families(
     progress: bool,
     say: Callable[[str], None] = print,
     cache: bool = False,
+    baselines: list[str] | None = None,
 ) -> Path:
     """The entry's families study (``qkf study families`` with the entry's families, trials,
     seed, its baselines as the methods and ``NAME#SEED=policy:PATH`` per trained seed) into
     ``WORK/families/`` (an earlier one there is replaced whole at the end); returns it."""
     from qkf.transfer_alignment.study import CaseRun, run_study
 
-    run = families_run(entry, trials)
+    run = families_run(entry, trials, baselines)
     out = work / FAMILIES_DIR
 
     def on_start(i: int, n: int, case: CaseRun) -> None:
@@ -263,6 +296,7 @@ def evaluate_entry(
     say: Callable[[str], None] = print,
     update_entry: bool = False,
     cache: bool = False,
+    baselines: list[str] | None = None,
 ) -> Path:
     """Judge every trained seed on every case and, with a ``families:`` section, on the
     scenario families; writes ``evaluation/`` and ``card.md`` into the work folder, and with
@@ -272,9 +306,11 @@ def evaluate_entry(
     if not entry.trained_seeds():
         raise FileNotFoundError(f"{entry.folder}: no trained seed (run qkf zoo train first)")
     check_entry(entry)
+    for case in entry.spec.cases():
+        case_baselines(entry, case, baselines)  # refused before any work
     fam = entry.spec.families
     if fam is not None:
-        check_families(entry, work, trials)
+        check_families(entry, work, trials, baselines)
     dst = work / "evaluation"
     dst.mkdir(parents=True, exist_ok=True)
     _clear(dst)
@@ -282,7 +318,7 @@ def evaluate_entry(
         rows = []
         for case in entry.spec.cases():
             say(f"judging on {case.scenario}, benchmark seed {case.seed}")
-            folder = evaluate_case(entry, case, work, trials, progress, cache)
+            folder = evaluate_case(entry, case, work, trials, progress, cache, baselines)
             stem = f"{Path(case.scenario).stem}_seed{case.seed}"
             _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
             _copy(folder / "summary.md", dst / f"{stem}_summary.md")
@@ -292,7 +328,7 @@ def evaluate_entry(
         from qkf.transfer_alignment.study import case_folder
 
         say(f"judging on the families {', '.join(fam.families)}, benchmark seed {fam.seed}")
-        study = evaluate_families(entry, work, trials, progress, say, cache)
+        study = evaluate_families(entry, work, trials, progress, say, cache, baselines)
         for family in fam.families:
             _copy(
                 study / case_folder(family) / "trials.csv",

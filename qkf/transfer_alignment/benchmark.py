@@ -140,11 +140,22 @@ def refuse_tuning_seed(methods: list[NamedMethod], seed: int) -> None:
 
 
 def _unique(named: list[NamedMethod]) -> list[NamedMethod]:
+    """The methods with repeats of one spec under one label dropped (a method named twice
+    runs once); ``MethodSpecError`` for one label given to two different specs."""
+    kept: list[NamedMethod] = []
+    seen: set[tuple[str, str | None]] = set()
+    for m in named:
+        if m.spec is not None and (m.name, m.spec) in seen:
+            continue
+        seen.add((m.name, m.spec))
+        kept.append(m)
+    named = kept
     labels = [m.name for m in named]
     twice = sorted({n for n in labels if labels.count(n) > 1})
     if twice:
         raise MethodSpecError(
-            f"method {', '.join(twice)} given twice (use LABEL=SPEC to run one under two names)"
+            f"method {', '.join(twice)} given twice, for different methods (give each its own "
+            "LABEL=SPEC; the same method named twice runs once)"
         )
     return named
 
@@ -374,7 +385,8 @@ def run_benchmark(
         if isinstance(methods, str)
         else [m if isinstance(m, NamedMethod) else resolve_method(m) for m in methods]
     )
-    labels = [m.name for m in _unique(named)]
+    named = _unique(named)  # a method named twice runs once
+    labels = [m.name for m in named]
     refuse_tuning_seed(named, seed)
     # the methods' settings sections, checked before any work; the resolved config (user
     # sections with their defaults written in) is what every chunk and the manifest see
@@ -402,9 +414,9 @@ def run_benchmark(
         # inside the bar: a method's tuning in prepare() shows as its own counted row
         prepared = []
         prepare_cache: dict[str, str] = {}
-        for m in named:
-            method, prepare_cache[m.name] = cached_prepare(m.method, cfg, cache)
-            prepared.append(NamedMethod(m.name, method))
+        for one in named:
+            method, prepare_cache[one.name] = cached_prepare(one.method, cfg, cache)
+            prepared.append(NamedMethod(one.name, method))
         bar.note(None if in_process else f"0/{trials} trials")
         task = (
             partial(

@@ -451,6 +451,13 @@ def study_cmd(
             "best=policy:agents/zoo/best/model.zip; NAME#SEED=... per training seed)."
         ),
     ] = None,
+    baselines: Annotated[
+        str | None,
+        typer.Option(
+            help="Run only these of the study's methods (comma-separated labels, e.g. "
+            "kf-tuned,glr); --methods are added to them."
+        ),
+    ] = None,
     seed: Annotated[int | None, typer.Option(help="Judging seed (replaces study: seed).")] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     resume: Annotated[
@@ -486,8 +493,8 @@ def study_cmd(
     except ConfigError as exc:
         raise fail(str(exc)) from None
     if kind == "claims":
-        if families is not None or methods is not None or seed is not None:
-            raise fail("--families, --methods and --seed are not for a claims study")
+        if families is not None or methods is not None or seed is not None or baselines:
+            raise fail("--families, --methods, --baselines and --seed are not for a claims study")
         if trials is not None or set_:
             raise fail(
                 "--trials and --set are not for a claims study: its trials and configs are "
@@ -503,9 +510,10 @@ def study_cmd(
     added = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
     if methods is not None and not added:
         raise fail("--methods: no method given")
+    kept = None if baselines is None else [b.strip() for b in baselines.split(",") if b.strip()]
     try:
         spec, configs = load_study(
-            study, list(set_ or []), families=chosen, methods=added, seed=seed
+            study, list(set_ or []), families=chosen, methods=added, seed=seed, baselines=kept
         )
         if spec.kind == "crlb" and trials is not None:
             raise fail(f"--trials: {study} is a CRLB study; it runs no trials")
@@ -533,7 +541,7 @@ def study_cmd(
         written = run_study(
             study, out_path, not quiet, resume, overwrite, on_case,
             trials=trials, sets=list(set_ or []), on_start=on_start, families=chosen,
-            extra_methods=added, seed=seed, cache=not no_cache,
+            extra_methods=added, seed=seed, cache=not no_cache, baselines=kept,
         )  # fmt: skip
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None

@@ -438,18 +438,20 @@ def load_study(
     methods: list[str] | None = None,
     seed: int | None = None,
     base_methods: list[str] | None = None,
+    baselines: list[str] | None = None,
 ) -> tuple[Study, list[Config]]:
     """Read a study (a path or a preset name) and the config of each case; ``sets``
     (``dotted.key=value``) are applied to every case after the case's own. ``families``: run
     only these families of a families study; ``base_methods``: replace the study's methods
     (``methods`` are added after them); ``methods``: added to the study's methods;
-    ``seed``: replaces the study's seed (each recorded in the returned study).
+    ``seed``: replaces the study's seed (each recorded in the returned study); ``baselines``:
+    keep only these of the study's methods (by label), before ``methods`` are added.
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, STUDIES)
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
-    study = _narrow(path, study, families, methods, seed, base_methods)
+    study = _narrow(path, study, families, methods, seed, base_methods, baselines)
     # a CRLB study plots the same summary columns (of the bound), so the same names apply
     if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
@@ -484,9 +486,11 @@ def _narrow(
     methods: list[str] | None,
     seed: int | None,
     base_methods: list[str] | None = None,
+    baselines: list[str] | None = None,
 ) -> Study:
     """The study with the command line's choices applied: only the chosen families of a
-    families study, ``base_methods`` instead of its methods, ``methods`` added, the seed."""
+    families study, ``base_methods`` instead of its methods, only the ``baselines`` among them,
+    ``methods`` added, the seed."""
     update: dict[str, Any] = {}
     if base_methods is not None:
         if study.kind == "crlb":
@@ -494,6 +498,8 @@ def _narrow(
         if not base_methods:
             raise ConfigError(f"methods: none given to replace those of {path}")
         study = study.model_copy(update={"methods": list(base_methods)})
+    if baselines is not None:
+        study = study.model_copy(update={"methods": pick_baselines(study.methods, baselines)})
     if families is not None:
         if study.kind != "families":
             raise ConfigError(f"--families: {path} is a {study.kind} study, not a families study")
@@ -511,6 +517,25 @@ def _narrow(
     if seed is not None:
         update["seed"] = seed
     return study.model_copy(update=update)
+
+
+def spec_label(spec: str) -> str:
+    """The label a method spec is reported under, as written (``LABEL=SPEC``: LABEL)."""
+    label, sep, _ = spec.partition("=")
+    return label.strip() if sep else spec.strip()
+
+
+def pick_baselines(specs: list[str], wanted: list[str]) -> list[str]:
+    """The specs of ``specs`` whose labels are in ``wanted``, in their order; ``ConfigError``
+    for a wanted label that is not there (naming those that are), or for none wanted."""
+    labels = [spec_label(s) for s in specs]
+    unknown = [w for w in wanted if w not in labels]
+    if unknown or not wanted:
+        raise ConfigError(
+            f"--baselines: {', '.join(unknown) or 'none given'}: not among the methods; "
+            f"choose from {', '.join(labels)}"
+        )
+    return [s for s, label in zip(specs, labels, strict=True) if label in wanted]
 
 
 def study_cases(study: Study) -> list[Case]:
@@ -568,6 +593,7 @@ def run_study(
     seed: int | None = None,
     base_methods: list[str] | None = None,
     cache: bool = False,
+    baselines: list[str] | None = None,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
     ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
@@ -577,7 +603,7 @@ def run_study(
     results from the results cache (docs/caching.md)."""
     study, configs = load_study(
         path, sets, families=families, methods=extra_methods, seed=seed,
-        base_methods=base_methods,
+        base_methods=base_methods, baselines=baselines,
     )  # fmt: skip
     out = Path(out_dir)
     n = study.trials if trials is None else trials
