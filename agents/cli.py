@@ -11,9 +11,11 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from qkf.core.cli_support import (
+    BackendOption,
     NoCacheOption,
     OverwriteOption,
     SetOption,
+    backend_options,
     fail,
     out,
     out_dir,
@@ -110,10 +112,13 @@ def evaluate_cmd(
     overwrite: OverwriteOption = False,
     no_cache: NoCacheOption = False,
 ) -> None:
-    """Filter Monte Carlo trials with the policy's κ; writes the files of ``qkf bench``."""
+    """Filter Monte Carlo trials with the policy's κ beside kf (and kf-tuned when its tuning
+    is in the results cache: docs/caching.md); writes the files of ``qkf bench``."""
     from agents.policy import Policy
+    from qkf.core.results_cache import cache_enabled
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
-    from qkf.transfer_alignment.methods import resolve_method_settings
+    from qkf.transfer_alignment.chunk_cache import preparation_cached
+    from qkf.transfer_alignment.methods import METHODS, resolve_method_settings
     from qkf.transfer_alignment.report import write_bench
 
     if model.is_dir():
@@ -126,7 +131,12 @@ def evaluate_cmd(
     try:
         policy = Policy(model)
         cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
-        named = parse_methods(f"policy:{model}")
+        # kf beside the policy, and kf-tuned where its tuning is cached: a table that reads on
+        # its own without a tuning run
+        baselines = ["kf"]
+        if not no_cache and cache_enabled() and preparation_cached(METHODS["kf-tuned"], cfg):
+            baselines.append("kf-tuned")
+        named = parse_methods([*baselines, f"policy:{model}"])
         cfg = resolve_method_settings(cfg, named, str(scenario or policy.cfg.scenario))
     except (ConfigError, ValueError) as exc:
         raise fail(str(exc)) from None
@@ -196,10 +206,21 @@ def zoo_train_cmd(
     ] = None,
     work: WorkOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    backend: BackendOption = "local",
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="local backend: seeds trained at once, each in a process of its own (default: "
+            "the cores over the config's torch_threads; 1: one after another, here)."
+        ),
+    ] = None,
 ) -> None:
-    """Train every seed of the entry (a finished run is reused) and ship the best one."""
+    """Train every seed of the entry (a finished run is reused), side by side, and ship the
+    best one. Each seed's network is the one a sequential run trains. --backend ray runs a
+    Ray task per seed (RAY_ADDRESS, else a local cluster)."""
     from agents.zoo.commands import train_entry
 
+    backend_options(backend, workers)
     entry = _entry(name)
     chosen_seeds = None
     if seeds is not None:
@@ -216,7 +237,9 @@ def zoo_train_cmd(
             raise fail(f"--seeds: {seeds!r} names a seed twice")
     folder = _work(work, entry)
     try:
-        chosen = train_entry(entry, folder, chosen_seeds, not quiet, lambda m: out.print(m))
+        chosen = train_entry(
+            entry, folder, chosen_seeds, not quiet, lambda m: out.print(m), backend, workers
+        )
     except ConfigError as exc:
         raise fail(str(exc)) from None
     out.print(f"shipped seed {chosen}; wrote {entry.folder}/ (card.md)")

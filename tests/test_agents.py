@@ -186,6 +186,10 @@ def test_policy_in_bench_and_evaluate(tmp_path: Path) -> None:
     )
     assert res.exit_code == 0, res.output
     assert (tmp_path / "e" / "rms.csv").exists()
+    # the table reads on its own: kf beside the policy (kf-tuned only where its tuning is
+    # cached; the suite runs without the results cache)
+    rows = (tmp_path / "e" / "summary.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[0] for r in rows] == ["kf", "policy:m"]
 
 
 @pytest.mark.parametrize("name", ["train_a2c", "train_sac", "train_dqn", "train_ppo_continuous"])

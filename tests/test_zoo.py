@@ -61,10 +61,13 @@ def _weights(path: Path) -> list[np.ndarray]:
 @pytest.mark.slow
 def test_zoo_train_and_evaluate(tmp_path: Path) -> None:
     folder = _entry(tmp_path)
+    # both seeds side by side, in processes of their own
     res = runner.invoke(
-        app, ["zoo", "train", str(folder), "--work", str(tmp_path / "w"), "--quiet"]
+        app,
+        ["zoo", "train", str(folder), "--work", str(tmp_path / "w"), "--quiet", "--workers", "2"],
     )
     assert res.exit_code == 0, res.output
+    assert "seed 0: trained" in res.output and "seed 1: trained" in res.output
     entry = load_entry(folder)
     assert entry.trained_seeds() == [0, 1]
     scores = {s: entry.validation_score(s) for s in (0, 1)}
@@ -72,7 +75,8 @@ def test_zoo_train_and_evaluate(tmp_path: Path) -> None:
     assert (folder / "model.zip").read_bytes() == entry.seed_model(chosen).read_bytes()
     assert yaml.safe_load((folder / "seed_1" / "config.yaml").read_text())["seed"] == 1
 
-    # deterministic by seed: seed 1 again in another work folder gives the same network
+    # deterministic by seed: seed 1 again in another work folder, alone and in this process
+    # (not side by side), gives the same network
     res = runner.invoke(
         app,
         ["zoo", "train", str(folder), "--seeds", "1", "--work", str(tmp_path / "w2"), "--quiet"],

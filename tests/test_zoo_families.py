@@ -184,6 +184,20 @@ def test_families_card_recomputed_from_trials(tmp_path: Path) -> None:
         pk = next(r for r in mine if r["quantity"] == "p_improve" and r["versus"] == "kf-tuned")
         assert f"| kf-tuned | {float(pk['value']):.2f} | {ratio:.3f} [" in section
 
+    # an interrupted evaluation keeps its finished families: one family's folder gone (as if
+    # the run stopped there), the next run into the same work folder reruns only that one
+    kept = (study / "steady_random" / "trials.csv").read_bytes()
+    redo = (study / "ads_mismatch_random" / "trials.csv").read_bytes()
+    shutil.rmtree(study / "ads_mismatch_random")
+    res = runner.invoke(
+        app, ["zoo", "evaluate", str(folder), "--work", str(work), "--trials", "2", "--quiet"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "steady_random: finished earlier, kept" in res.output
+    assert "ads_mismatch_random: finished earlier" not in res.output
+    assert (study / "steady_random" / "trials.csv").read_bytes() == kept
+    assert (study / "ads_mismatch_random" / "trials.csv").read_bytes() == redo
+
     # --update-entry: the entry's evaluation/ and card.md become the work folder's
     res = runner.invoke(
         app,

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from agents.config import load_train_config
-from agents.training import plan_training, run_training
-from agents.training.records import EVALUATIONS, remove_staging
+from agents.training import plan_training
+from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
 from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry
 from agents.zoo.summary import LEVEL, families_summary, judge_summary, write_summary
@@ -174,7 +174,7 @@ def check_families(
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     try:
-        prepare_output(work / FAMILIES_DIR, resume=False, overwrite=True)
+        prepare_output(work / FAMILIES_DIR, resume=True, overwrite=False)
     except OutputError as exc:
         raise ConfigError(f"--work: {exc}") from None
 
@@ -185,18 +185,32 @@ def train_entry(
     seeds: list[int] | None = None,
     progress: bool = True,
     say: Callable[[str], None] = print,
+    backend: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
 ) -> int | None:
-    """Train the entry's seeds (default: all of ``zoo.yaml``); returns the shipped seed."""
-    for seed in seeds if seeds is not None else entry.spec.seeds:
+    """Train the entry's seeds (default: all of ``zoo.yaml``), side by side
+    (:func:`~agents.training.parallel.train_side_by_side`: ``backend``, ``workers``,
+    ``address``); returns the shipped seed. Each seed's network is the one a sequential run
+    trains."""
+    from agents.training.parallel import train_side_by_side
+
+    chosen_seeds = list(seeds if seeds is not None else entry.spec.seeds)
+    plans = []
+    for seed in chosen_seeds:
         cfg = load_train_config(entry.train_source, [f"seed={seed}"])
-        run_dir = work / f"seed_{seed}"
-        plan = plan_training(cfg, run_dir, source=f"{entry.train_source} (seed {seed})")
+        plan = plan_training(
+            cfg, work / f"seed_{seed}", source=f"{entry.train_source} (seed {seed})"
+        )
         say(f"seed {seed}: {'already trained' if plan.complete else ', '.join(plan.notes)}")
-        try:
-            model = run_training(plan, progress=progress)
-        except KeyboardInterrupt:  # Ctrl-C: no half-written checkpoint left in a staging folder
-            remove_staging(run_dir)
-            raise
+        plans.append(plan)
+    todo = [i for i, p in enumerate(plans) if not p.complete]
+
+    def ship(i: int, model: Path) -> None:
+        # into the entry as each seed's result comes back: an interrupted run keeps those done
+        seed, run_dir = chosen_seeds[i], plans[i].out
+        if not plans[i].complete:
+            say(f"seed {seed}: trained")
         dst = entry.seed_dir(seed)
         dst.mkdir(parents=True, exist_ok=True)
         _copy(model, dst / model.name)
@@ -205,6 +219,14 @@ def train_entry(
         evaluations = run_dir / EVALUATIONS
         if evaluations.is_file():
             _copy(evaluations, dst / "evaluations.npz")
+
+    for i, plan in enumerate(plans):  # finished earlier: shipped first
+        if plan.complete:
+            ship(i, plan.model_path)
+    train_side_by_side(
+        [p for p in plans if not p.complete], backend, workers, address, progress,
+        lambda j, model: ship(todo[j], model),
+    )  # fmt: skip
     chosen = entry.selected_seed()
     if chosen is not None:
         for name in (entry.model_name(), "config.yaml"):
@@ -263,7 +285,9 @@ def evaluate_families(
 ) -> Path:
     """The entry's families study (``qkf study families`` with the entry's families, trials,
     seed, its baselines as the methods and ``NAME#SEED=policy:PATH`` per trained seed) into
-    ``WORK/families/`` (an earlier one there is replaced whole at the end); returns it."""
+    ``WORK/families/``; returns it. A family that an earlier, interrupted run there finished
+    with the same config, methods, trials and seed is kept, not rerun (``run_study``'s
+    resume); anything else of an earlier study there is replaced."""
     from qkf.transfer_alignment.study import CaseRun, run_study
 
     run = families_run(entry, trials, baselines)
@@ -272,8 +296,13 @@ def evaluate_families(
     def on_start(i: int, n: int, case: CaseRun) -> None:
         say(f"family {i}/{n}: {case.label}")
 
+    def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+        if reused:
+            say(f"{case.label}: finished earlier, kept")
+
     run_study(
-        FAMILIES_STUDY, out, progress, resume=False, overwrite=True, trials=run.trials,
+        FAMILIES_STUDY, out, progress, resume=True, overwrite=False, on_case=on_case,
+        trials=run.trials,
         sets=run.sets, on_start=on_start, families=run.families, extra_methods=run.policies,
         seed=run.seed, base_methods=run.baselines, cache=cache,
     )  # fmt: skip

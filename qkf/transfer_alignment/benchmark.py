@@ -410,11 +410,19 @@ def run_benchmark(
         raise ValueError("keep= needs the trials run in this process (local, one worker)")
     label = _bar_label(labels, backend, workers)
     with progress_bar(trials * len(labels), label, progress, "method-trials") as bar:
-        bar.note("preparing methods")
-        # inside the bar: a method's tuning in prepare() shows as its own counted row
+        # the tuning stage: a note per method that tunes, with the time left estimated from
+        # those done so far; inside the bar, a method's tuning in prepare() shows as its own
+        # counted row (Optuna's evaluations)
+        tuning = [m.name for m in named if callable(getattr(m.method, "prepare", None))]
         prepared = []
         prepare_cache: dict[str, str] = {}
+        started = time.perf_counter()
         for one in named:
+            if one.name in tuning:
+                done = tuning.index(one.name)
+                left = (time.perf_counter() - started) / done * (len(tuning) - done) if done else 0
+                eta = f", about {left:.0f} s left" if done and left >= 1 else ""
+                bar.note(f"tuning {done + 1}/{len(tuning)}: {one.name}{eta}")
             method, prepare_cache[one.name] = cached_prepare(one.method, cfg, cache)
             prepared.append(NamedMethod(one.name, method))
         bar.note(None if in_process else f"0/{trials} trials")

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from qkf.core.results_cache import Entry, ResultsCache, code_fingerprint, describe
+from qkf.core.results_cache import Entry, ResultsCache, code_fingerprint, describe, key_digest
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.divergence import Divergence
 from qkf.transfer_alignment.methods.base import Method, prepare
@@ -155,3 +155,10 @@ def cached_prepare(method: Method, cfg: Config, cache: bool) -> tuple[Method, st
     blob = np.frombuffer(pickle.dumps(prepared, protocol=5), dtype=np.uint8)
     store.put(key, Entry({"pickle": blob}))
     return prepared, status
+
+
+def preparation_cached(method: Method, cfg: Config) -> bool:
+    """Whether the results cache holds ``method``'s preparation for ``cfg`` (a cheap look:
+    the entry's file exists; it is checked when read)."""
+    key = prepare_key(cfg, method)
+    return key is not None and ResultsCache().path(key_digest(key)).is_file()
