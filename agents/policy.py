@@ -2,9 +2,11 @@
 
 ``policy:PATH`` is resolved through the method-factory registry of
 :mod:`qkf.transfer_alignment.methods` (entry-point group ``qkf.method_factories``, declared in
-``pyproject.toml``), so ``qkf`` itself never imports this package. The model needs the
-``config.yaml`` its training wrote beside it (``qkf train`` does): it says which agent, action
-type and decision period the policy was trained with.
+``pyproject.toml``), so ``qkf`` itself never imports this package. The model's settings (which
+agent, environment, action type, decision period and frame stack) come from the
+``config.yaml`` that ``qkf train`` wrote beside it, from an RL Zoo3 run's own records, or, for a
+bare Stable-Baselines3 zip, from ``policy:PATH@ENV_ID`` and the zip itself
+(:mod:`agents.policy_sources`).
 
 The policy sees its environment's observation (the batched episodes of
 :mod:`envs.transfer_alignment.episodes`, with the observation version of the id it was trained
@@ -25,7 +27,8 @@ import numpy as np
 
 import envs
 from agents.algorithms import ALGORITHMS, algorithm_class
-from agents.config import TrainConfig, load_train_config
+from agents.config import TrainConfig
+from agents.policy_sources import policy_config, saved_spaces, settings_files, split_spec
 from envs import ENVIRONMENTS
 from envs.common import ActionMap
 from envs.transfer_alignment import BatchedEpisodes
@@ -47,9 +50,9 @@ class Policy:
     """
 
     def __init__(self, path: str | Path) -> None:
-        path = _model_file(path)
-        # any scenario will do: the training one may be a path relative to elsewhere
-        self.cfg = load_train_config(path.parent / "config.yaml", check_scenario=False)
+        # a qkf run, an RL Zoo3 run, or PATH@ENV_ID (agents/policy_sources.py)
+        path, self.cfg = policy_config(str(path))
+        self.path = path
         self.recurrent = ALGORITHMS[self.cfg.agent].recurrent
         self.obs_size = ENVIRONMENTS[self.cfg.env].observation_size
         self.frame_stack = self.cfg.frame_stack
@@ -100,7 +103,15 @@ class Policy:
 def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
     policy = Policy(path)
-    actions = ActionMap(np.asarray(cfg.adaptive.actions.values()), policy.cfg.action_type)
+    values = np.asarray(cfg.adaptive.actions.values())
+    if policy.path.suffix == ".zip" and policy.cfg.action_type == "discrete":
+        _, _, n = saved_spaces(policy.path)
+        if n is not None and n != values.size:
+            raise ConfigError(
+                f"{path}: chooses among {n} actions, but the config's action set "
+                f"(adaptive.actions) has {values.size}: a policy trained on another action set"
+            )
+    actions = ActionMap(values, policy.cfg.action_type)
     env = ENVIRONMENTS[policy.cfg.env]
     if env.problem != "transfer_alignment" or env.observation is None:
         raise ConfigError(
@@ -148,7 +159,7 @@ class PolicyMethod:
     @property
     def default_label(self) -> str:
         """``policy:<stem>``, or ``policy:<folder>`` for a model saved as ``model.*``."""
-        p = Path(self.path)
+        p = Path(split_spec(self.path)[0])
         return f"policy:{p.parent.name if p.stem == 'model' and p.parent.name else p.stem}"
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
@@ -156,40 +167,21 @@ class PolicyMethod:
 
     def cache_token(self) -> dict[str, Any]:
         """The policy in a results-cache key (docs/caching.md): the SHA-256 of the model file
-        and of the ``config.yaml`` beside it, the path (its notes name it), and the code of
-        the environments and agents that turn observations into κ."""
-        model = _model_file(self.path)
+        and of the files its settings come from (``config.yaml``, or RL Zoo3's records), the
+        spec (its notes name it), and the code of the environments and agents that turn
+        observations into κ."""
+        model, _ = policy_config(self.path)
         return {
             "type": "agents.policy:PolicyMethod",
             "path": self.path,
             "model_sha256": _sha256(model),
-            "config_sha256": _sha256(model.parent / "config.yaml"),
+            "settings_sha256": [_sha256(p) for p in settings_files(self.path)],
             "code": code_fingerprint([Path(envs.__file__).parent, Path(__file__).parent]),
         }
 
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _model_file(path: str | Path) -> Path:
-    """A saved model's path, checked: an existing file with the training's ``config.yaml``
-    beside it (``FileNotFoundError`` / ``ConfigError`` otherwise)."""
-    model = Path(path)
-    if not str(path).strip():
-        raise ConfigError(
-            "no model path given (policy:PATH, e.g. policy:agents/zoo/best/model.zip)"
-        )
-    if model.is_dir():
-        raise ConfigError(f"{path}: is a directory, not a model file (model.zip or model.npz)")
-    if not model.is_file():
-        raise FileNotFoundError(f"{path}: no such model file")
-    if not (model.parent / "config.yaml").is_file():
-        raise FileNotFoundError(
-            f"{path}: no config.yaml beside the model (qkf train writes it; it names the agent, "
-            "action type and decision period)"
-        )
-    return model
 
 
 def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
@@ -208,13 +200,13 @@ def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
     if saved_recurrent != ALGORITHMS[cfg.agent].recurrent:
         held = "a recurrent (LSTM) policy" if saved_recurrent else "a feed-forward policy"
         raise ConfigError(
-            f"{path}: holds {held}, but config.yaml beside it says agent {cfg.agent} "
+            f"{path}: holds {held}, but its settings say agent {cfg.agent} "
             f"({'recurrent' if ALGORITHMS[cfg.agent].recurrent else 'feed-forward'}); "
             "the model and its config do not belong together"
         )
     if list(shape) != [obs_size]:
         raise ConfigError(
-            f"{path}: expects observations of {list(shape)} entries, but config.yaml says env "
+            f"{path}: expects observations of {list(shape)} entries, but its settings say env "
             f"{cfg.env} with frame_stack {cfg.frame_stack} ({obs_size} entries): a policy "
             "trained on another environment version"
         )
