@@ -66,3 +66,24 @@ def test_unknown_baselines_are_refused_before_any_work(tmp_path: Path) -> None:
     assert result.exit_code == 2, result.output
     assert "nosuch: not among the methods" in result.output
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_tunings_side_by_side_give_the_sequential_settings() -> None:
+    """With worker processes the methods' tunings (kf-tuned's κ, the clock's schedule, an
+    Optuna study) run side by side, one per process; each gives what it gives in sequence."""
+    import numpy as np
+    from conftest import cfg_with
+
+    from qkf.transfer_alignment.benchmark import run_benchmark
+
+    cfg = cfg_with("scenario.duration_s=500", "run.settled_s=300", "adaptive.tuned.trials=2",
+                   "adaptive.optuna.evaluations=3", "run.chunk_trials=1")  # fmt: skip
+    methods = "kf-tuned,clock,glr-tuned"
+    here = run_benchmark(cfg, methods, trials=2, seed=7, progress=False)
+    side = run_benchmark(cfg, methods, trials=2, seed=7, progress=False, workers=2)
+    for a, b in zip(here.methods, side.methods, strict=True):
+        assert a.name == b.name
+        assert a.trial_values is not None and b.trial_values is not None
+        np.testing.assert_array_equal(a.trial_values, b.trial_values)
+        assert a.notes == b.notes  # the notes give the tuned values

@@ -31,13 +31,22 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
-from qkf.transfer_alignment.chunk_cache import cached_prepare, chunk_key, from_entry, to_entry
+from qkf.transfer_alignment.chunk_cache import (
+    cached_prepare,
+    chunk_key,
+    from_entry,
+    lookup_prepared,
+    prepare_at,
+    store_prepared,
+    to_entry,
+)
 from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     BUILTIN_METHODS,
+    Method,
     MethodOutput,
     MethodSpecError,
     NamedMethod,
@@ -414,10 +423,29 @@ def run_benchmark(
         # those done so far; inside the bar, a method's tuning in prepare() shows as its own
         # counted row (Optuna's evaluations)
         tuning = [m.name for m in named if callable(getattr(m.method, "prepare", None))]
-        prepared = []
         prepare_cache: dict[str, str] = {}
+        ready: dict[str, Method] = {}
+        if not in_process and len(tuning) > 1:
+            # the tunings side by side on the backend, those not in the results cache
+            found = {x.name: lookup_prepared(x.method, cfg, cache) for x in named
+                     if x.name in tuning}  # fmt: skip
+            todo = [x for x in named if x.name in tuning and found[x.name][0] is None]
+            bar.note(f"tuning {len(todo)} methods side by side ({backend})")
+            tune = partial(prepare_at, cfg, tuple(x.method for x in todo))
+            ones = [np.array([i]) for i in range(len(todo))]
+            tuned = run_chunks(tune, ones, backend, workers, cfg.run.ray_address)
+            for x, result in zip(todo, tuned, strict=True):
+                store_prepared(found[x.name][2], result[0])
+                ready[x.name] = result[0]
+            for name, (method, status, _) in found.items():
+                ready.setdefault(name, method)  # type: ignore[arg-type]
+                prepare_cache[name] = status
+        prepared = []
         started = time.perf_counter()
         for one in named:
+            if one.name in ready:
+                prepared.append(NamedMethod(one.name, ready[one.name]))
+                continue
             if one.name in tuning:
                 done = tuning.index(one.name)
                 left = (time.perf_counter() - started) / done * (len(tuning) - done) if done else 0

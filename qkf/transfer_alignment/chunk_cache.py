@@ -133,28 +133,50 @@ def prepare_key(cfg: Config, method: object) -> dict[str, Any] | None:
     }
 
 
-def cached_prepare(method: Method, cfg: Config, cache: bool) -> tuple[Method, str]:
-    """``prepare(method, cfg)``, from the results cache where it holds it (``cache``), and what
-    happened: ``hit``, ``miss``, ``corrupt``, or ``off`` (nothing to prepare, not cached, or
-    a method that cannot be described). The prepared method is kept pickled: it is what the
-    workers receive anyway; an entry that does not unpickle counts as damaged."""
-    if not callable(getattr(method, "prepare", None)):
-        return method, "off"
+def lookup_prepared(
+    method: Method, cfg: Config, cache: bool
+) -> tuple[Method | None, str, dict[str, Any] | None]:
+    """The prepared ``method`` from the results cache (None if it must be prepared), what
+    happened (``hit``, ``miss``, ``corrupt``, or ``off``: not cached or a method that cannot
+    be described), and the key to store a fresh preparation under (None: do not store). The
+    prepared method is kept pickled (what the workers receive anyway); an entry that does not
+    unpickle counts as damaged."""
     key = prepare_key(cfg, method) if cache else None
     if key is None:
-        return prepare(method, cfg), "off"
-    store = ResultsCache()
-    lookup = store.get(key)
-    status = lookup.status
+        return None, "off", None
+    lookup = ResultsCache().get(key)
     if lookup.entry is not None:
         try:
-            return pickle.loads(lookup.entry.arrays["pickle"].tobytes()), "hit"
+            return pickle.loads(lookup.entry.arrays["pickle"].tobytes()), "hit", key
         except Exception:  # a damaged pickle behind an intact checksum: recompute
-            status = "corrupt"
+            return None, "corrupt", key
+    return None, lookup.status, key
+
+
+def store_prepared(key: dict[str, Any] | None, prepared: Method) -> None:
+    """Keep a fresh preparation under ``key`` (from :func:`lookup_prepared`; None: nothing)."""
+    if key is not None:
+        blob = np.frombuffer(pickle.dumps(prepared, protocol=5), dtype=np.uint8)
+        ResultsCache().put(key, Entry({"pickle": blob}))
+
+
+def cached_prepare(method: Method, cfg: Config, cache: bool) -> tuple[Method, str]:
+    """``prepare(method, cfg)``, from the results cache where it holds it (``cache``), and what
+    happened (:func:`lookup_prepared`); ``off`` for a method with nothing to prepare."""
+    if not callable(getattr(method, "prepare", None)):
+        return method, "off"
+    found, status, key = lookup_prepared(method, cfg, cache)
+    if found is not None:
+        return found, status
     prepared = prepare(method, cfg)
-    blob = np.frombuffer(pickle.dumps(prepared, protocol=5), dtype=np.uint8)
-    store.put(key, Entry({"pickle": blob}))
+    store_prepared(key, prepared)
     return prepared, status
+
+
+def prepare_at(cfg: Config, methods: tuple[Method, ...], ids: np.ndarray) -> list[Method]:
+    """``prepare`` of ``methods[i]`` for ``i`` in ``ids``: the unit of work of a backend when
+    the tunings run side by side (:func:`~qkf.transfer_alignment.benchmark.run_benchmark`)."""
+    return [prepare(methods[int(i)], cfg) for i in ids]
 
 
 def preparation_cached(method: Method, cfg: Config) -> bool:

@@ -465,6 +465,14 @@ def study_cmd(
     ] = False,
     overwrite: Annotated[bool, typer.Option(help="Replace an earlier study in --out.")] = False,
     no_cache: NoCacheOption = False,
+    backend: BackendOption = "local",
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="local backend: worker processes for the trials and the methods' tunings "
+            "(config: run.workers)."
+        ),
+    ] = None,
 ) -> None:
     """Run the cases of a study and plot them together: case folders, study.csv, study.png,
     run.json. A families study (qkf study families) writes families.csv, families.md and
@@ -511,6 +519,7 @@ def study_cmd(
     if methods is not None and not added:
         raise fail("--methods: no method given")
     kept = None if baselines is None else [b.strip() for b in baselines.split(",") if b.strip()]
+    backend_options(backend, workers)
     try:
         spec, configs = load_study(
             study, list(set_ or []), families=chosen, methods=added, seed=seed, baselines=kept
@@ -542,6 +551,7 @@ def study_cmd(
             study, out_path, not quiet, resume, overwrite, on_case,
             trials=trials, sets=list(set_ or []), on_start=on_start, families=chosen,
             extra_methods=added, seed=seed, cache=not no_cache, baselines=kept,
+            backend=backend, workers=workers,
         )  # fmt: skip
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None

@@ -594,13 +594,16 @@ def run_study(
     base_methods: list[str] | None = None,
     cache: bool = False,
     baselines: list[str] | None = None,
+    backend: str = "local",
+    workers: int | None = None,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
     ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
     ``run.json``. ``trials`` replaces the study's own; ``sets`` are applied to every case after
     its own (both recorded in run.json, and in each case's manifest); ``families``,
     ``extra_methods``, ``seed``, ``base_methods``: see :func:`load_study`; ``cache``: reuse
-    results from the results cache (docs/caching.md)."""
+    results from the results cache (docs/caching.md); ``backend``, ``workers``: those of
+    :func:`run_benchmark` (trials, and the methods' tunings, side by side)."""
     study, configs = load_study(
         path, sets, families=families, methods=extra_methods, seed=seed,
         base_methods=base_methods, baselines=baselines,
@@ -629,7 +632,7 @@ def run_study(
         record()
         results = run_cases(
             cases, methods, where, n, study.seed, resume, after, on_start, progress=progress,
-            cache=cache,
+            cache=cache, backend=backend, workers=workers,
         )  # fmt: skip
         rows = [row for r in results for row in case_rows(r)]
         atomic_write_csv(where / "study.csv", ("case", *SUMMARY_COLUMNS), rows)
