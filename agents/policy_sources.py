@@ -197,7 +197,7 @@ def policy_config(spec: str) -> tuple[Path, TrainConfig]:
     raise FileNotFoundError(
         f"{path}: no config.yaml beside the model (qkf train writes it), and no RL Zoo3 record "
         f"({model.stem}/args.yml); for a bare Stable-Baselines3 zip name its environment: "
-        f"policy:{path}@qkf/TransferAlignment-v3"
+        f"policy:{path}@ENV_ID (ENV_ID one of {', '.join(ENVIRONMENTS.names())})"
     )
 
 

@@ -72,7 +72,7 @@ def test_rl_zoo3_and_bare_zips_read_the_settings_qkf_train_wrote(tmp_path: Path)
     _, got = policy_config(f"{bare}@{ENV}")
     fields = ("agent", "env", "action_type", "period_s", "frame_stack")
     assert [getattr(got, f) for f in fields] == [getattr(want, f) for f in fields]
-    with pytest.raises(FileNotFoundError, match=r"no config\.yaml beside the model.*@qkf/"):
+    with pytest.raises(FileNotFoundError, match=r"no config\.yaml beside the model.*@ENV_ID"):
         policy_config(str(bare))
 
 
