@@ -48,6 +48,15 @@ def _qkf() -> list[str]:
     return [str(script)] if script.is_file() else [sys.executable, "-m", "qkf"]
 
 
+def _as_from_a_terminal() -> None:
+    """In the child before it runs qkf: SIGINT handled and delivered as in a process a shell
+    starts. A disposition of "ignore" and a blocked signal survive exec, so a test worker that
+    inherited either (from whatever ran in it before) would otherwise pass it on, and the
+    Ctrl-C would never arrive."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+
+
 def _interrupt(
     args: list[str], cwd: Path, started: Any, env: dict[str, str] | None = None
 ) -> tuple[int, str]:
@@ -61,7 +70,7 @@ def _interrupt(
            **(env or {})}  # fmt: skip
     proc = subprocess.Popen(
         [*_qkf(), *args], cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=sub,
-        stderr=subprocess.PIPE, start_new_session=True,
+        stderr=subprocess.PIPE, start_new_session=True, preexec_fn=_as_from_a_terminal,
     )  # fmt: skip
     os.close(sub)
     shown = bytearray()
