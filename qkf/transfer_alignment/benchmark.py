@@ -438,7 +438,8 @@ def run_benchmark(
                 store_prepared(found[x.name][2], result[0])
                 ready[x.name] = result[0]
             for name, (method, status, _) in found.items():
-                ready.setdefault(name, method)  # type: ignore[arg-type]
+                if method is not None:  # from the cache
+                    ready[name] = method
                 prepare_cache[name] = status
         prepared = []
         started = time.perf_counter()

@@ -60,21 +60,25 @@ def config_key(cfg: Config) -> dict[str, Any]:
     return data
 
 
-def chunk_key(cfg: Config, method: object, seed: int, ids: np.ndarray) -> dict[str, Any] | None:
-    """The key of ``method`` on trials ``ids`` of ``seed``; None if the method cannot be
-    described (then it is not cached)."""
+def _key(kind: str, cfg: Config, method: object, **more: Any) -> dict[str, Any] | None:
+    """A key of this module: the kind, the code, the config as it bears on results and the
+    method, plus ``more``; None if the method cannot be described (then it is not cached)."""
     token = describe(method)
     if token is None:
         return None
     return {
-        "kind": "transfer_alignment.chunk",
+        "kind": f"transfer_alignment.{kind}",
         "version": KEY_VERSION,
         "code": code_fingerprint([PACKAGE]),
         "config": config_key(cfg),
         "method": token,
-        "seed": int(seed),
-        "trials": [int(i) for i in ids],
+        **more,
     }
+
+
+def chunk_key(cfg: Config, method: object, seed: int, ids: np.ndarray) -> dict[str, Any] | None:
+    """The key of ``method`` on trials ``ids`` of ``seed`` (None: not cached)."""
+    return _key("chunk", cfg, method, seed=int(seed), trials=[int(i) for i in ids])
 
 
 def to_entry(parts: dict[str, Any]) -> Entry:
@@ -121,16 +125,7 @@ def from_entry(entry: Entry, label: str) -> dict[str, Any]:
 def prepare_key(cfg: Config, method: object) -> dict[str, Any] | None:
     """The key of ``method.prepare(cfg)`` (its tuning on the tuning seeds): the code, the
     config as it bears on results, and the unprepared method; None if it cannot be described."""
-    token = describe(method)
-    if token is None:
-        return None
-    return {
-        "kind": "transfer_alignment.prepare",
-        "version": KEY_VERSION,
-        "code": code_fingerprint([PACKAGE]),
-        "config": config_key(cfg),
-        "method": token,
-    }
+    return _key("prepare", cfg, method)
 
 
 def lookup_prepared(
