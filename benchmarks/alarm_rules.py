@@ -33,6 +33,7 @@ from qkf.transfer_alignment.methods.fixed import run_fixed
 from qkf.transfer_alignment.methods.oracle import tune_oracle
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, state_errors, trial_mean_squares
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
+from qkf.transfer_alignment.settled import settled_windows
 
 Rule = Callable[[np.ndarray], np.ndarray]  # observation (B, size) → κ (B,)
 
@@ -40,7 +41,8 @@ Rule = Callable[[np.ndarray], np.ndarray]  # observation (B, size) → κ (B,)
 def settled_ms(cfg: Config, data: ScenarioData, est: np.ndarray) -> np.ndarray:
     """Per-trial settled mean square of the misalignment error, µrad² (B,)."""
     err = state_errors(est, data.q_true, data.bias, data.calib)
-    ms = trial_mean_squares(err, data.t, cfg.run.settled_s, np.ones(err.shape[-1]))
+    first = settled_windows(cfg, data).first
+    ms = trial_mean_squares(err, data.t, first, np.ones(err.shape[-1]))
     return ms[:, METRIC_COLUMNS.index("ma_urad_settled")] / 1e-12
 
 

@@ -24,6 +24,7 @@ from qkf.transfer_alignment.families import (
 from qkf.transfer_alignment.judging import state_weights, trial_scores
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.report import read_trials_csv
+from qkf.transfer_alignment.settled import SettledWindows
 from qkf.transfer_alignment.study import load_study
 
 runner = CliRunner()
@@ -36,12 +37,12 @@ def test_state_settled_by_hand() -> None:
     cfg = load_config("paper", ["scenario.duration_s=600", "run.settled_s=400"])
     w = crlb(cfg).bound[-1]
     assert np.allclose(state_weights(cfg), w)
-    t = np.arange(600.0)
     err = np.zeros((2, 600, 15))
     err[0, 400:, 0] = 3.0 * w[0]  # one state at 3 bounds over the settled window
     err[0, :400, :] = 1e3  # before the window: does not count
     err[1, 400:, :] = 2.0 * w  # every state at 2 bounds
-    got = trial_scores(cfg, err, t)
+    windows = SettledWindows(np.array([400, 400]), np.stack([w, w]))
+    got = trial_scores(err, windows)
     assert got == pytest.approx([math.sqrt(9.0 / 15.0), 2.0], rel=1e-12)
 
 

@@ -43,7 +43,6 @@ from qkf.transfer_alignment.chunk_cache import (
 from qkf.transfer_alignment.config import TUNING_SEEDS, Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
-from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import (
     BUILTIN_METHODS,
     Method,
@@ -64,6 +63,7 @@ from qkf.transfer_alignment.metrics import (
 )
 from qkf.transfer_alignment.params import n_epochs
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
+from qkf.transfer_alignment.settled import SettledWindows, settled_windows
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUPS
 
 BAND_POINTS = 300
@@ -223,8 +223,9 @@ def run_chunk(
     unit of work of a backend).
 
     ``report``: see :data:`MethodReport` (progress only; the results do not depend on it);
-    ``keep``: see :data:`KeepOutput`; ``weights``: those of ``state_settled`` (SI), when not the
-    config's own (:func:`~qkf.transfer_alignment.judging.state_weights`). ``cache``: take each
+    ``keep``: see :data:`KeepOutput`; ``weights``: those of ``state_settled`` (SI) for data that are
+    not a simulation of ``cfg`` (judged from ``run.settled_s``), else each trial's own
+    (:func:`~qkf.transfer_alignment.settled.settled_windows`). ``cache``: take each
     method's part from the results cache where it holds it, and store what is computed
     (simulated trials only, without ``keep`` or ``weights``; :mod:`.chunk_cache`);
     ``ChunkResult.cache`` says per method ``hit``, ``miss``, ``corrupt`` or ``off``.
@@ -258,11 +259,12 @@ def run_chunk(
                 report(m.name, ids, True)
         return res
     data = source(cfg, seed, ids)
+    windows = settled_windows(cfg, data, weights)
     for m in methods:
         if report is not None:
             report(m.name, ids, False)
         if res.cache[m.name] != "hit":
-            parts = _method_parts(cfg, m, data, ids, keep, weights)
+            parts = _method_parts(cfg, m, data, ids, keep, windows)
             _set_parts(res, m.name, parts)
             key = keys[m.name]
             if store is not None and key is not None:
@@ -278,13 +280,12 @@ def _method_parts(
     data: ScenarioData,
     ids: np.ndarray,
     keep: KeepOutput | None,
-    weights: np.ndarray | None,
+    windows: SettledWindows,
 ) -> dict[str, object]:
     """Run one method on a chunk's trials: its fields of :class:`ChunkResult`."""
     n = n_epochs(cfg.scenario)
     cov_epochs = covariance_epochs(cfg)
-    # state_settled's, in display units
-    w = (state_weights(cfg) if weights is None else weights) / DISPLAY_UNIT
+    w = windows.weights / DISPLAY_UNIT  # state_settled's, in display units
     t0 = time.perf_counter()
     out = validate_output(m.method(cfg, data), m.name, data.n_trials, n, cov_epochs.size)
     runtime = time.perf_counter() - t0
@@ -299,7 +300,7 @@ def _method_parts(
         nees_sum, nees_count = np.where(ok, val, 0.0).sum(axis=0), ok.sum(axis=0)
     return {
         "sum_sq": np.sum(err * err, axis=0),
-        "trial_ms": trial_mean_squares(err / DISPLAY_UNIT, data.t, cfg.run.settled_s, w),
+        "trial_ms": trial_mean_squares(err / DISPLAY_UNIT, data.t, windows.first, w),
         "band_ms": np.stack([np.mean(sq[..., sl], axis=-1) for sl in GROUPS.values()], axis=-1),
         "kappa": None
         if out.kappa is None

@@ -337,7 +337,11 @@ class RunConfig(StrictModel):
     chunk_trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 64
     workers: Annotated[int, Field(ge=1, le=1024)] = 1  # local backend: processes (1 = here)
     ray_address: str | None = None  # ray backend: cluster address (else RAY_ADDRESS, else local)
-    settled_s: NonNegativeFloat = 400.0  # start of the settled window of the summary metrics
+    # earliest start of the settled window of the summary metrics, s; each trial's own window
+    # opens once its calibration CRLB is within settle_factor of its end-of-run value after its
+    # opening rotations (qkf/transfer_alignment/settled.py)
+    settled_s: NonNegativeFloat = 400.0
+    settle_factor: Annotated[float, Field(gt=1.0)] = 2.0
     nees_every_s: PositiveFloat = 10.0  # methods report their covariance this often (NEES)
     baseline: str = "kf"  # the method others are compared with (paired.csv), if it is run
     bootstrap: Bootstrap = Bootstrap()

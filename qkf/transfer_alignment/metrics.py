@@ -90,20 +90,26 @@ def window_masks(t: np.ndarray, settled_s: float) -> dict[str, np.ndarray]:
 
 
 def trial_mean_squares(
-    err: np.ndarray, t: np.ndarray, settled_s: float, weights: np.ndarray
+    err: np.ndarray, t: np.ndarray, settled_first: np.ndarray, weights: np.ndarray
 ) -> np.ndarray:
     """Per trial, the mean square of each metric (B, K) in :data:`METRIC_COLUMNS` order: over
     the window's epochs and the group's components; ``state_settled`` over the settled epochs
-    and all 15 states of ``err / weights``. ``err`` (B, N, 15) and ``weights`` (15,) in the
-    same units (any)."""
-    masks = window_masks(t, settled_s)
+    and all 15 states of ``err / weights``. ``settled_first`` (B,): each trial's first settled
+    epoch (:class:`~qkf.transfer_alignment.settled.SettledWindows`); ``err`` (B, N, 15) and
+    ``weights`` (B, 15) or (15,) in the same units (any)."""
+    n = t.size
+    masks = window_masks(t, float(t[-1]) if n else 0.0)
+    settled = np.arange(n)[None, :] >= np.asarray(settled_first)[:, None]  # (B, N)
+    count = settled.sum(axis=1)
     sq = err * err
     cols = []
     for sl in GROUPS.values():
         group = np.mean(sq[..., sl], axis=-1)  # (B, N)
-        cols += [np.mean(group[:, masks[w]], axis=1) for w in WINDOWS]
-    scaled = (err[:, masks["settled"]] / weights) ** 2
-    cols.append(np.mean(scaled, axis=(1, 2)))
+        cols += [np.mean(group[:, masks["final"]], axis=1), np.mean(group, axis=1)]
+        cols.append(np.sum(np.where(settled, group, 0.0), axis=1) / count)
+    w = np.broadcast_to(weights, (err.shape[0], err.shape[-1]))
+    scaled = np.mean((err / w[:, None, :]) ** 2, axis=2)
+    cols.append(np.sum(np.where(settled, scaled, 0.0), axis=1) / count)
     return np.stack(cols, axis=1)
 
 

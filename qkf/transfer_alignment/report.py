@@ -394,11 +394,20 @@ def _recovery(res: BenchResult) -> dict[str, dict[str, float]]:
     }
 
 
-def settled_window_text(t: np.ndarray, settled_s: float) -> str:
-    """What the *settled* window of :func:`~qkf.transfer_alignment.metrics.window_masks` really
-    is for epochs ``t`` (s): "from 400 s on", or, for a run that ends before ``settled_s``,
-    the last epoch alone (which is what the metrics then average over)."""
+def settled_window_text(t: np.ndarray, settled_s: float, settle_factor: float | None = None) -> str:
+    """What the *settled* window really is for epochs ``t`` (s): with ``settle_factor`` (each
+    trial's own window, :mod:`qkf.transfer_alignment.settled`) how it opens; else "from 400 s
+    on"; for a run that ends before ``settled_s``, the last epoch alone (which is what the
+    metrics then average over)."""
     if t.size == 0 or t[-1] >= settled_s - 1e-9:
+        if settle_factor is not None:
+            return (
+                f"each trial's own window, from the later of {settled_s:g} s and the first "
+                "epoch after its opening rotations at which its own CRLB of every calibration "
+                f"term is within {settle_factor:g} × its end-of-run value (docs/methods.md, "
+                '"The settled window"); state settled is in units of that trial\'s own '
+                "end-of-run CRLB"
+            )
         return f"from {settled_s:g} s on"
     return (
         f"the last epoch only (t = {t[-1]:g} s), because the run ends before run.settled_s = "
@@ -429,6 +438,7 @@ def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None)
         res.bound.bound / DISPLAY_UNIT, res.t, cfg.run.settled_s, weights / DISPLAY_UNIT
     )
     verdicts = {(p.method, p.metric): p.verdict for p in res.paired if p.baseline == "kf"}
+    own = cfg.run.settle_factor if res.weights is None else None  # recorded: fixed window
     head = ["method", "trials"]
     for g in GROUP_TITLES:
         head += [f"{g.split('_')[0]} {w} [{UNITS[g]}]" for w in WINDOWS]
@@ -444,7 +454,7 @@ def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None)
         f"Trials: {res.trials}, seed: {res.seed}, matching: {cfg.filter.matching}, "
         f"q_p0 = {cfg.filter.qp0:g} /s, duration {cfg.scenario.duration_s:g} s.",
         "RMS over trials; *final* = over the last 20 % of the run, *avg* = over the whole run, "
-        f"*settled* = {settled_window_text(res.t, cfg.run.settled_s)}; a group's RMS is the "
+        f"*settled* = {settled_window_text(res.t, cfg.run.settled_s, own)}; a group's RMS is the "
         "root of the mean square over its components. Intervals of every value are in "
         f"summary.csv ({level:g} % bootstrap over trials).",
     ]

@@ -7,8 +7,9 @@ trial ``b`` is the settled-window score of the filter run with it (:mod:`..judgi
 
     J_b(u) = sqrt( S_b(u) / (N_s · n) ),  S_b(u) = Σ_{k settled} Σ_{i ∈ states} (e_{b,k,i} / w_i)²
 
-(``N_s`` settled epochs, ``n`` states of the metric, ``w`` the metric's weights: the final
-nominal CRLB for ``state_settled``, 1 for a group metric). Two criteria: *per trial*, each
+(``N_s`` settled epochs of the trial's own window, ``n`` states of the metric, ``w`` the
+metric's weights: the trial's final CRLB for ``state_settled``, 1 for a group metric;
+:mod:`qkf.transfer_alignment.settled`). Two criteria: *per trial*, each
 trial has its own schedule and minimises its own ``J_b`` (hindsight); *pooled*, one schedule
 for all trials minimises ``sqrt(mean_b J_b²)`` (clock; infinite if a trial diverges).
 
@@ -53,10 +54,10 @@ import numpy as np
 from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.judging import METRIC_STATES, STATE_METRIC, pooled, state_weights
+from qkf.transfer_alignment.judging import METRIC_STATES, STATE_METRIC, pooled
 from qkf.transfer_alignment.methods.base import action_values, new_filter, per_epoch
-from qkf.transfer_alignment.metrics import window_masks
 from qkf.transfer_alignment.scenario import ScenarioData
+from qkf.transfer_alignment.settled import settled_windows
 
 ROW_EPOCHS = 100_000
 """Rows × epochs per filter call of a rollout: the chunk length is this over the row count
@@ -147,32 +148,33 @@ def attitude_error(q_hat: np.ndarray, q_true: np.ndarray) -> np.ndarray:
 
 
 class _Scorer:
-    """Sums ``S`` of squared weighted errors over the settled epochs of a chunk, per row."""
+    """Sums ``S`` of squared weighted errors over each trial's settled epochs in a chunk, per
+    row, divided by the trial's count of terms ``N_s,b · n`` (so ``J = sqrt(S)``: trials have
+    windows of their own length, :mod:`qkf.transfer_alignment.settled`)."""
 
     def __init__(self, cfg: Config, data: ScenarioData, metric: str) -> None:
-        settled = window_masks(data.t, cfg.run.settled_s)["settled"]
-        first = int(np.flatnonzero(settled)[0])
-        if not settled[first:].all():  # window_masks gives a suffix; the sums rely on it
-            raise ValueError("the settled window must run to the end of the run")
+        windows = settled_windows(cfg, data)
         if metric == STATE_METRIC:
             self.states: slice = slice(0, 15)
-            weights = state_weights(cfg)
+            weights = windows.weights
         elif metric in METRIC_STATES:
             self.states = METRIC_STATES[metric]
-            weights = np.ones(15)
+            weights = np.ones((data.n_trials, 15))
         else:
             known = ", ".join([STATE_METRIC, *METRIC_STATES])
             raise ValueError(f"unknown metric {metric!r}; known: {known}")
-        self.inv_w = 1.0 / weights[self.states]
-        self.first = first
-        self.norm = float(settled.sum() * self.inv_w.size)
+        inv_w = 1.0 / weights[:, self.states]  # (B, n)
+        count = (data.n_epochs - windows.first) * inv_w.shape[1]  # N_s,b · n
+        self.scale = inv_w / np.sqrt(count)[:, None]
+        self.first = windows.first
         self.data = data
 
     def chunk(self, est: np.ndarray, trials: np.ndarray, k0: int) -> np.ndarray:
         """``Σ`` over the settled epochs of ``est`` (R, n, 16), which covers epochs
         ``[k0, k0 + n)`` of the rows' ``trials`` (R,); NaN for a row whose errors are not
         finite there."""
-        skip = max(0, self.first - k0)
+        first = self.first[trials]
+        skip = max(0, int(first.min()) - k0)
         n = est.shape[1]
         if skip >= n:
             return np.zeros(est.shape[0])
@@ -183,12 +185,14 @@ class _Scorer:
         err[..., 0:3] = attitude_error(est[..., 0:4], d.q_true[trials, sl])
         err[..., 3:6] = d.bias[trials, sl] - est[..., 4:7]
         err[..., 6:15] = d.calib[trials, sl] - est[..., 7:16]
-        return np.sum((err[..., self.states] * self.inv_w) ** 2, axis=(1, 2))
+        per_epoch = np.sum((err[..., self.states] * self.scale[trials][:, None, :]) ** 2, axis=2)
+        settled = np.arange(k0 + skip, k0 + n)[None, :] >= first[:, None]
+        return np.sum(np.where(settled, per_epoch, 0.0), axis=1)
 
     def score(self, total: np.ndarray) -> np.ndarray:
         """``J`` from ``S``; ``inf`` where ``S`` is not finite (a lost trial never wins)."""
         with np.errstate(invalid="ignore"):
-            j = np.sqrt(total / self.norm)
+            j = np.sqrt(total)
         return np.where(np.isfinite(j), j, np.inf)
 
 
