@@ -35,7 +35,7 @@ def main() -> None:
         reps = {m: bootstrap_rms(values[m] ** 2, counts) for m in labels}
         for m in labels:
             percentile_interval(reps[m])
-        paired = paired_ratios(labels, values, reps, [labels[0]], 0.95)
+        paired = paired_ratios(labels, values, reps, [labels[0]], 0.95, counts)
         best = min(best, time.perf_counter() - t0)
     print(
         f"{args.trials} trials × {args.methods} methods × {len(METRIC_COLUMNS)} metrics, "

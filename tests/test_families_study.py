@@ -118,8 +118,19 @@ def test_families_table_recomputed_from_trials(small_study: Path) -> None:
             assert float(r["lo"]) <= float(r["value"]) <= float(r["hi"])
             if r["method"] == "kf-tuned":
                 assert float(r["ratio_lo"]) == float(r["ratio_hi"]) == 1.0
+            # the per-trial columns, recomputed; 6 trials are too few for a verdict
+            per_trial = values[r["method"]][:, j] / values["kf-tuned"][:, j]
+            assert float(r["median_ratio"]) == pytest.approx(np.median(per_trial), rel=1e-12)
+            assert float(r["p_improve"]) == pytest.approx(
+                np.mean((per_trial < 1) + 0.5 * (per_trial == 1)), abs=1e-12
+            )
+            assert float(r["worst_decile"]) == pytest.approx(np.percentile(per_trial, 90))
+            assert float(r["median_lo"]) <= float(r["median_ratio"]) <= float(r["median_hi"])
+            assert r["verdict"] == "unjudged"
     md = (small_study / "families.md").read_text()
     assert "## steady_random" in md and "IQM" in md
+    assert "**No verdicts:** 6 trials per family, fewer than the 15" in md
+    assert "**" not in md.replace("**No verdicts:**", "").replace("**Bold**", "")
     assert (small_study / "families.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -90,9 +90,12 @@ def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
         "## Evaluation",
         "",
         f"Command: `qkf zoo evaluate {entry.name}`. Benchmark seeds are disjoint from the "
-        "environment seeds of training. Intervals: paired 95 % bootstrap over trials; a ratio "
-        "< 1 whose interval excludes 1 is `better`. The IQM row is over training seeds, with "
-        "the range of the seeds in brackets.",
+        "environment seeds of training. Intervals: paired 95 % bootstrap over trials. Each "
+        "cell: the pooled RMS ratio; then per trial the median ratio, the share of trials "
+        "won and the worst decile (90th percentile of the per-trial ratios). `better` / "
+        "`worse`: the pooled and the median intervals both below / above 1; `unjudged`: too "
+        "few trials for a verdict. The IQM row is over training seeds, with the range of the "
+        "seeds in brackets.",
         "",
     ]
     cases = dict.fromkeys((r["scenario"], r["seed"], r["trials"], r["metric"]) for r in rows)
@@ -117,9 +120,8 @@ def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
             cells = [_fmt(rms) if rms else "–"]
             for v in versus:
                 r = mine.get(("ratio", v)) or mine.get(("ratio_range", v))
-                cells.append(
-                    _fmt(r) + (f" {r['verdict']}" if r and r["verdict"] else "") if r else "–"
-                )
+                cell = _fmt(r) + (f" {r['verdict']}" if r and r["verdict"] else "") if r else "–"
+                cells.append(cell + _per_trial_text(mine, v))
             g = mine.get(("gap_share", "kf→oracle")) or mine.get(("gap_share_range", "kf→oracle"))
             cells.append(_fmt(g) if g else "–")
             lines.append(f"| {policy} | " + " | ".join(cells) + " |")
@@ -148,6 +150,20 @@ def _ratio_cell(r: dict[str, str]) -> str:
     )
 
 
+def _per_trial_text(mine: dict[tuple[str, str], dict[str, str]], versus: str) -> str:
+    """``; median m [lo, hi], won w %, worst 10 % q`` of a comparison (empty without)."""
+    med = mine.get(("median_ratio", versus))
+    if med is None:
+        return ""
+    won = mine.get(("trials_won", versus))
+    worst = mine.get(("worst_decile", versus))
+    return (
+        f"; median {_num(med['value'])} [{_num(med['lo'])}, {_num(med['hi'])}]"
+        + (f", won {float(won['value']):.0%}" if won else "")
+        + (f", worst 10 % {_num(worst['value'])}" if worst else "")
+    )
+
+
 def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     """The families section of the card, from ``evaluation/zoo_families.csv``
     (:func:`agents.zoo.summary.families_summary`): per family the IQM line and a table of the
@@ -173,7 +189,9 @@ def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
         f"bootstrap {pct} interval. P(improve): the probability that the policy's score "
         "exceeds the baseline's on a trial (rliable; 0.5: no difference). Ratio: RMS of the "
         f"shipped seed's policy (`{shipped or '–'}`) ÷ the baseline's on the same trials, "
-        f"paired {pct} bootstrap interval; `better` where it lies below 1.",
+        f"paired {pct} bootstrap interval; per trial: the median ratio with its interval, the "
+        "share of trials won and the worst decile (90th percentile of the per-trial ratios). "
+        "`better` / `worse`: the pooled and the median intervals both below / above 1.",
         "",
     ]
     for family in dict.fromkeys(r["scenario"] for r in rows):
@@ -189,15 +207,25 @@ def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
             ]
         p_improve = {r["versus"]: r for r in mine if r["quantity"] == "p_improve"}
         ratio = {r["versus"]: r for r in mine if r["quantity"] == "ratio"}
+        per = {(r["quantity"], r["versus"]): r for r in mine}
         lines += [
-            f"| baseline | P(improve) | {shipped or 'shipped seed'} ÷ baseline [{pct}] |",
-            "|---|---|---|",
+            f"| baseline | P(improve) | {shipped or 'shipped seed'} ÷ baseline, pooled [{pct}] "
+            "| median per trial | trials won | worst 10 % |",
+            "|---|---|---|---|---|---|",
         ]
         for b in dict.fromkeys([*p_improve, *ratio]):
             p = p_improve.get(b)
             r = ratio.get(b)
             cell = _ratio_cell(r) if r else ""
-            lines.append(f"| {b} | {_num(p['value'], 2) if p else '–'} | {cell} |")
+            med, won, worst = (per.get((q, b)) for q in ("median_ratio", "trials_won",
+                                                        "worst_decile"))  # fmt: skip
+            med_cell = (
+                f"{_num(med['value'])} [{_num(med['lo'])}, {_num(med['hi'])}]" if med else "–"
+            )
+            won_cell = f"{float(won['value']):.0%}" if won else "–"
+            worst_cell = _num(worst["value"]) if worst else "–"
+            lines.append(f"| {b} | {_num(p['value'], 2) if p else '–'} | {cell} | {med_cell} | "
+                         f"{won_cell} | {worst_cell} |")  # fmt: skip
         lines.append("")
     return lines
 

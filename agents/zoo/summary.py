@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,10 +31,14 @@ from qkf.core.io import atomic_write_text
 from qkf.core.stats import (
     bootstrap_rms,
     interquartile_mean,
+    min_verdict_trials,
+    per_trial_comparison,
     percentile_interval,
     ratio_side,
     resample_counts,
 )
+from qkf.transfer_alignment.benchmark import paired_verdict
+from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 
 RESAMPLES = 2000
 LEVEL = 0.95
@@ -52,13 +57,17 @@ class JudgeRow:
     trials: int
     metric: str
     policy: str  # ``<entry>:s<seed>``, ``<entry>:IQM``; families: ``<entry>``, ``<entry>#<seed>``
-    quantity: str  # rms | ratio | gap_share (| …_range); families: iqm | p_improve | ratio
+    # rms | ratio | median_ratio | trials_won | worst_decile | gap_share (| …_range);
+    # families: iqm | p_improve | ratio | median_ratio | trials_won | worst_decile
+    quantity: str
     versus: str  # the baseline of a ratio (iqm: kf-tuned; p_improve: the baseline);
     # ``kf→oracle`` for the gap share; "" for rms
     value: float
     lo: float  # NaN where there is no interval (p_improve)
     hi: float
-    verdict: str  # ratio: better | worse | inconclusive (iqm: of a score, above 1 better)
+    # ratio: better | worse (the pooled and the median interval on one side of 1) |
+    # inconclusive | unjudged (too few trials); iqm: of a score, above 1 better
+    verdict: str
 
 
 def read_metric(trials_csv: Path, metric: str) -> dict[str, np.ndarray]:
@@ -80,12 +89,17 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
     policies = [m for m in per_trial if m.startswith(f"{entry.name}:s")]
     bases = [b for b in case.baselines if b in per_trial]
 
+    judged = n >= min_verdict_trials(LEVEL)
+
     def row(
-        policy: str, quantity: str, versus: str, value: float, lo: float, hi: float
+        policy: str,
+        quantity: str,
+        versus: str,
+        value: float,
+        lo: float,
+        hi: float,
+        verdict: str = "",
     ) -> JudgeRow:
-        verdict = (
-            ("inconclusive", "worse", "better")[ratio_side(lo, hi)] if quantity == "ratio" else ""
-        )
         return JudgeRow(
             case.scenario,
             case.seed,
@@ -107,7 +121,10 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
         rows.append(row(p, "rms", "", point[p], float(lo), float(hi)))
         for b in bases:
             lo, hi = percentile_interval(reps[p] / reps[b], LEVEL)
-            rows.append(row(p, "ratio", b, point[p] / point[b], float(lo), float(hi)))
+            rows += comparison_rows(
+                row, p, b, point[p] / point[b], float(lo), float(hi),
+                per_trial[p], per_trial[b], counts, judged,
+            )  # fmt: skip
         if "kf" in per_trial and "oracle" in per_trial and point["kf"] > point["oracle"]:
             rep_share = (reps["kf"] - reps[p]) / (reps["kf"] - reps["oracle"])
             lo, hi = percentile_interval(rep_share, LEVEL)
@@ -128,6 +145,33 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
                 row(iqm, "gap_share_range", "kf→oracle", interquartile_mean(s), s.min(), s.max())
             )
     return rows
+
+
+def comparison_rows(
+    row: Callable[..., JudgeRow],
+    policy: str,
+    base: str,
+    ratio: float,
+    lo: float,
+    hi: float,
+    values: np.ndarray,
+    base_values: np.ndarray,
+    counts: np.ndarray,
+    judged: bool,
+) -> list[JudgeRow]:
+    """The rows of one paired comparison: the pooled ``ratio`` (verdict from both intervals,
+    :func:`~qkf.transfer_alignment.benchmark.paired_verdict`), the median per-trial ratio with
+    its interval, the share of trials won and the worst decile (per-trial ``values``)."""
+    per = per_trial_comparison(values, base_values, counts, LEVEL)
+    m_lo, m_hi = float(per.median_lo), float(per.median_hi)
+    verdict = paired_verdict(lo, hi, m_lo, m_hi, judged)
+    nan = float("nan")
+    return [
+        row(policy, "ratio", base, ratio, lo, hi, verdict),
+        row(policy, "median_ratio", base, float(per.median), m_lo, m_hi),
+        row(policy, "trials_won", base, float(per.p_improve), nan, nan),
+        row(policy, "worst_decile", base, float(per.worst_decile), nan, nan),
+    ]
 
 
 def families_summary(
@@ -177,10 +221,15 @@ def families_summary(
         if shipped is None:
             continue
         label = f"{mine}{shipped}"
+        counts = resample_counts(n, boot.resamples, seed)  # versus_rows' resamples
+        judged = n >= min_verdict_trials(boot.level)
+        j = METRIC_COLUMNS.index(STATE_SETTLED)
         for v in versus_rows(family, values, [label], boot.resamples, boot.level, seed):
             if v.other in VERSUS:
-                verdict = ("inconclusive", "worse", "better")[ratio_side(v.lo, v.hi)]
-                rows.append(row(label, "ratio", v.other, v.ratio, v.lo, v.hi, verdict))
+                rows += comparison_rows(
+                    row, label, v.other, v.ratio, v.lo, v.hi,
+                    values[label][:, j], values[v.other][:, j], counts, judged,
+                )  # fmt: skip
     return rows
 
 

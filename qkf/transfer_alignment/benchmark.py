@@ -26,7 +26,9 @@ from qkf.core.stats import (
     ErrorAccumulator,
     average_nees_band,
     bootstrap_rms,
+    min_verdict_trials,
     nees,
+    per_trial_comparison,
     percentile_interval,
     ratio_side,
     resample_counts,
@@ -560,7 +562,9 @@ def run_benchmark(
         kappa_t=np.arange(0, n, kappa_sampling(cfg)) * cfg.scenario.dt_s,
         backend=backend,
         workers=workers,
-        paired=paired_ratios(labels, values, replicates, baselines(cfg, labels), boot.level),
+        paired=paired_ratios(
+            labels, values, replicates, baselines(cfg, labels), boot.level, counts
+        ),
         band_t=t[band_epochs(n)],
         nees_t=nees_t,
         weights=weights,
@@ -608,7 +612,10 @@ def column_rms(values: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PairedRatio:
-    """``method`` RMS / ``baseline`` RMS on one metric, with its paired bootstrap interval."""
+    """``method`` against ``baseline`` on one metric: the pooled RMS ratio with its paired
+    bootstrap interval, and per trial the median ratio with its interval, P(improve) and the
+    worst decile (:class:`~qkf.core.stats.PerTrialComparison`); ``judged``: enough trials for a
+    verdict (:func:`~qkf.core.stats.min_verdict_trials`)."""
 
     method: str
     baseline: str
@@ -616,11 +623,30 @@ class PairedRatio:
     ratio: float
     lo: float
     hi: float
+    median: float = float("nan")
+    median_lo: float = float("nan")
+    median_hi: float = float("nan")
+    p_improve: float = float("nan")
+    worst_decile: float = float("nan")
+    judged: bool = True
 
     @property
     def verdict(self) -> str:
-        """``better`` (interval below 1), ``worse`` (above 1) or ``inconclusive``."""
-        return ("inconclusive", "worse", "better")[ratio_side(self.lo, self.hi)]
+        """``better`` when the pooled ratio's interval and the median per-trial ratio's are
+        both below 1, ``worse`` when both are above, ``unjudged`` with too few trials, else
+        ``inconclusive`` (docs/methods.md, "Per-trial verdicts")."""
+        return paired_verdict(self.lo, self.hi, self.median_lo, self.median_hi, self.judged)
+
+
+def paired_verdict(lo: float, hi: float, median_lo: float, median_hi: float, judged: bool) -> str:
+    """The verdict of a comparison from its two intervals (:attr:`PairedRatio.verdict`); an
+    interval that is not known (NaN) never supports a verdict."""
+    if not judged:
+        return "unjudged"
+    pooled, median = ratio_side(lo, hi), ratio_side(median_lo, median_hi)
+    if pooled == median != 0:
+        return "better" if pooled < 0 else "worse"
+    return "inconclusive"
 
 
 def baselines(cfg: Config, labels: list[str]) -> list[str]:
@@ -634,10 +660,13 @@ def paired_ratios(
     replicates: dict[str, np.ndarray],
     bases: list[str],
     level: float,
+    counts: np.ndarray,
 ) -> list[PairedRatio]:
     """Every method against every baseline, every metric: the RMS ratio on all trials and its
-    percentile interval over the *same* resamples of trials for both (a paired bootstrap)."""
+    percentile interval over the *same* resamples ``counts`` of trials for both (a paired
+    bootstrap), and the per-trial comparison over the same resamples."""
     out = []
+    judged = counts.shape[1] >= min_verdict_trials(level)
     for base in bases:
         point_b = column_rms(values[base])
         for m in labels:
@@ -647,8 +676,12 @@ def paired_ratios(
             with np.errstate(divide="ignore", invalid="ignore"):
                 ratio = point / point_b
                 lo, hi = percentile_interval(replicates[m] / replicates[base], level)
-            out += [
-                PairedRatio(m, base, col, float(ratio[j]), float(lo[j]), float(hi[j]))
-                for j, col in enumerate(METRIC_COLUMNS)
-            ]
+            per = per_trial_comparison(values[m], values[base], counts, level)
+            for j, col in enumerate(METRIC_COLUMNS):
+                pooled_part = (float(ratio[j]), float(lo[j]), float(hi[j]))
+                trial_part = (
+                    float(per.median[j]), float(per.median_lo[j]), float(per.median_hi[j]),
+                    float(per.p_improve[j]), float(per.worst_decile[j]),
+                )  # fmt: skip
+                out.append(PairedRatio(m, base, col, *pooled_part, *trial_part, judged))
     return out

@@ -36,7 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from qkf.core.plotting import Figure, plt
-from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
+from qkf.core.stats import (
+    bootstrap_rms,
+    min_verdict_trials,
+    per_trial_comparison,
+    percentile_interval,
+    resample_counts,
+)
+from qkf.transfer_alignment.benchmark import paired_verdict
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.report import load_bench
 
@@ -68,6 +75,7 @@ FAMILY_METRICS: tuple[str, ...] = (
 FAMILIES_COLUMNS: tuple[str, ...] = (
     "family", "method", "metric", "value", "lo", "hi",
     "ratio_vs_kf_tuned", "ratio_lo", "ratio_hi",
+    "median_ratio", "median_lo", "median_hi", "p_improve", "worst_decile", "verdict",
 )  # fmt: skip
 SEED_MARK = "#"
 """``NAME#SEED`` labels: the training seeds of one policy, pooled by :func:`seed_statistics`."""
@@ -84,10 +92,31 @@ class FamilyRow:
     ratio: float = math.nan
     ratio_lo: float = math.nan
     ratio_hi: float = math.nan
+    median: float = math.nan
+    median_lo: float = math.nan
+    median_hi: float = math.nan
+    p_improve: float = math.nan
+    worst_decile: float = math.nan
+    judged: bool = True
+
+    @property
+    def verdict(self) -> str:
+        """Against kf-tuned: ``better`` / ``worse`` when the pooled and the median intervals
+        are both below / above 1 (:func:`~..benchmark.paired_verdict`); empty without a
+        ratio."""
+        if math.isnan(self.ratio):
+            return ""
+        return paired_verdict(
+            self.ratio_lo, self.ratio_hi, self.median_lo, self.median_hi, self.judged
+        )
 
     def cells(self) -> list[object]:
-        nums = (self.value, self.lo, self.hi, self.ratio, self.ratio_lo, self.ratio_hi)
-        return [self.family, self.method, self.metric, *("" if math.isnan(v) else v for v in nums)]
+        nums = (
+            self.value, self.lo, self.hi, self.ratio, self.ratio_lo, self.ratio_hi,
+            self.median, self.median_lo, self.median_hi, self.p_improve, self.worst_decile,
+        )  # fmt: skip
+        blank = ("" if math.isnan(v) else v for v in nums)
+        return [self.family, self.method, self.metric, *blank, self.verdict]
 
 
 def family_rows(
@@ -109,6 +138,7 @@ def family_rows(
     counts = resample_counts(n, resamples, seed)
     reps = {m: bootstrap_rms(values[m][:, cols] ** 2, counts) for m in methods}
     point = {m: np.sqrt(np.mean(values[m][:, cols] ** 2, axis=0)) for m in methods}
+    judged = n >= min_verdict_trials(level)
     rows = []
     for res in bench.methods:
         m = res.name
@@ -117,12 +147,21 @@ def family_rows(
             with np.errstate(divide="ignore", invalid="ignore"):
                 ratio = point[m] / point[REFERENCE]
                 r_lo, r_hi = percentile_interval(reps[m] / reps[REFERENCE], level)
+            per = per_trial_comparison(
+                values[m][:, cols], values[REFERENCE][:, cols], counts, level
+            )
+            trial_part = [per.median, per.median_lo, per.median_hi, per.p_improve,
+                          per.worst_decile]  # fmt: skip
         else:
             ratio = r_lo = r_hi = np.full(len(cols), np.nan)
+            trial_part = [np.full(len(cols), np.nan)] * 5
         for j, metric in enumerate(FAMILY_METRICS[: len(cols)]):
+            pooled_part = (float(ratio[j]), float(r_lo[j]), float(r_hi[j]))
             rows.append(
                 FamilyRow(family, m, metric, float(point[m][j]), float(lo[j]), float(hi[j]),
-                          float(ratio[j]), float(r_lo[j]), float(r_hi[j]))
+                          *pooled_part, float(trial_part[0][j]), float(trial_part[1][j]),
+                          float(trial_part[2][j]), float(trial_part[3][j]),
+                          float(trial_part[4][j]), judged)
             )  # fmt: skip
         rows.append(FamilyRow(family, m, "nees_mean", float(res.summary.get("nees_mean", np.nan))))
     return rows
@@ -138,6 +177,16 @@ class VersusRow:
     ratio: float
     lo: float
     hi: float
+    median: float = math.nan
+    median_lo: float = math.nan
+    median_hi: float = math.nan
+    p_improve: float = math.nan
+    judged: bool = True
+
+    @property
+    def verdict(self) -> str:
+        """``better`` / ``worse`` / ``inconclusive`` / ``unjudged`` (both intervals)."""
+        return paired_verdict(self.lo, self.hi, self.median_lo, self.median_hi, self.judged)
 
 
 def versus_rows(
@@ -157,6 +206,7 @@ def versus_rows(
     counts = resample_counts(n, resamples, seed)
     reps = {m: bootstrap_rms(v[:, j] ** 2, counts) for m, v in values.items()}
     point = {m: float(np.sqrt(np.mean(v[:, j] ** 2))) for m, v in values.items()}
+    judged = n >= min_verdict_trials(level)
     out = []
     for m in focus:
         if m not in values:
@@ -167,7 +217,12 @@ def versus_rows(
             with np.errstate(divide="ignore", invalid="ignore"):
                 lo, hi = percentile_interval(reps[m] / reps[other], level)
                 ratio = point[m] / point[other]
-            out.append(VersusRow(family, m, other, ratio, float(lo), float(hi)))
+            per = per_trial_comparison(values[m][:, j], values[other][:, j], counts, level)
+            out.append(
+                VersusRow(family, m, other, ratio, float(lo), float(hi), float(per.median),
+                          float(per.median_lo), float(per.median_hi), float(per.p_improve),
+                          judged)
+            )  # fmt: skip
     return out
 
 
@@ -253,12 +308,20 @@ def families_markdown(
         "",
         f"{trials} trials per family on seed {seed} (every method on the same trials). "
         f"*state* = `state_settled`: the settled RMS over the 15 states of each state's error "
-        f"in units of its final nominal CRLB. Ratios are to `{REFERENCE}` on the same trials, "
-        f"with the paired {pct} bootstrap interval; **bold**: the interval excludes 1. "
-        "Group columns are the ratios of the settled group RMS; NEES = trial-averaged NEES / 15 "
-        f"over the settled window (1 = consistent). Headroom: `{REFERENCE}` → `{BOUND}`; share "
-        f"= (RMS_{REFERENCE} − RMS_m) / (RMS_{REFERENCE} − RMS_{BOUND}).",
+        f"in units of the trial's own final CRLB, over the trial's own settled window. Ratios "
+        f"are to `{REFERENCE}` on the same trials: *pooled* = RMS ratio, *median* = median "
+        f"per-trial ratio, each with its paired {pct} bootstrap interval; P(impr.) = share of "
+        "trials with a ratio below 1; worst 10 % = 90th percentile of the per-trial ratios. "
+        "**Bold** (a verdict): the pooled and the median intervals both exclude 1 on the same "
+        "side. "
+        "Group columns are the pooled ratios of the settled group RMS; NEES = trial-averaged "
+        "NEES / 15 over the settled window (1 = consistent). Headroom: "
+        f"`{REFERENCE}` → `{BOUND}`; share = (RMS_{REFERENCE} − RMS_m) / (RMS_{REFERENCE} − "
+        f"RMS_{BOUND}).",
     ]
+    few = "" if trials >= min_verdict_trials(level) else _too_few(trials, level)
+    if few:
+        lines += ["", few]
     for fam in families:
         mine = [r for r in rows if r.family == fam]
         if not mine:
@@ -276,13 +339,14 @@ def families_markdown(
                 else ""
             )
             lines.append("")
-        head = ["method", "state [× CRLB]", f"ratio [{pct}]", "att", "bias", "sf", "ma", "NEES"]
+        head = ["method", "state [× CRLB]", f"pooled [{pct}]", f"median [{pct}]", "P(impr.)",
+                "worst 10 %", "att", "bias", "sf", "ma", "NEES"]  # fmt: skip
         if room is not None:
             head.append("share")
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for m in methods:
             st = get[(m, STATE_SETTLED)]
-            cells = [m, f"{st.value:.4g} [{st.lo:.3g}, {st.hi:.3g}]", _ratio_cell(st)]
+            cells = [m, f"{st.value:.4g} [{st.lo:.3g}, {st.hi:.3g}]", *_trial_cells(st)]
             for metric in FAMILY_METRICS[1:5]:
                 r = get.get((m, metric))
                 cells.append(_ratio_cell(r, interval=False) if r is not None else "–")
@@ -295,14 +359,17 @@ def families_markdown(
             lines.append("| " + " | ".join(cells) + " |")
         mine_vs = [v for v in versus if v.family == fam]
         for m in dict.fromkeys(v.method for v in mine_vs):
+            mark = {"better": " ↓", "worse": " ↑"}
             cells = [
-                f"{v.other} {v.ratio:.3f} [{v.lo:.3f}, {v.hi:.3f}]"
-                + (" ↓" if v.hi < 1.0 else " ↑" if v.lo > 1.0 else "")
+                f"{v.other} {v.ratio:.3f} [{v.lo:.3f}, {v.hi:.3f}], median {v.median:.3f} "
+                f"[{v.median_lo:.3f}, {v.median_hi:.3f}], P(impr.) {v.p_improve:.0%}"
+                + mark.get(v.verdict, "")
                 for v in mine_vs
                 if v.method == m
             ]
-            lines += ["", f"`{m}` ÷ each method on `state_settled` (↓/↑: interval below/above "
-                      "1): " + "; ".join(cells) + "."]  # fmt: skip
+            lines += ["", f"`{m}` ÷ each method on `state_settled` (pooled, then median "
+                      "per-trial ratio; ↓/↑: both intervals below/above 1): "
+                      + "; ".join(cells) + "."]  # fmt: skip
         for stat in (seeds or {}).get(fam, []):
             extra = ", ".join(
                 f"P(improve over {k.removeprefix('p_improve_')}) = {v:.2f}"
@@ -322,11 +389,35 @@ def families_markdown(
 
 
 def _ratio_cell(r: FamilyRow | None, interval: bool = True) -> str:
+    """A group column: the pooled ratio, bold when its interval excludes 1 with enough trials
+    (a group ratio alone is not a verdict on the method; the state columns carry that)."""
     if r is None or not np.isfinite(r.ratio):
         return "–"
     text = f"{r.ratio:.3f}" + (f" [{r.ratio_lo:.3f}, {r.ratio_hi:.3f}]" if interval else "")
-    decided = np.isfinite(r.ratio_lo) and (r.ratio_hi < 1.0 or r.ratio_lo > 1.0)
+    decided = r.judged and np.isfinite(r.ratio_lo) and (r.ratio_hi < 1.0 or r.ratio_lo > 1.0)
     return f"**{text}**" if decided else text
+
+
+def _trial_cells(r: FamilyRow) -> list[str]:
+    """The pooled and median ratios with intervals, P(improve) and the worst decile; both
+    ratios bold when they make a verdict (:attr:`FamilyRow.verdict`)."""
+    if not np.isfinite(r.ratio):
+        return ["–"] * 4
+    bold = r.verdict in ("better", "worse")
+    pooled = f"{r.ratio:.3f} [{r.ratio_lo:.3f}, {r.ratio_hi:.3f}]"
+    median = f"{r.median:.3f} [{r.median_lo:.3f}, {r.median_hi:.3f}]"
+    if bold:
+        pooled, median = f"**{pooled}**", f"**{median}**"
+    return [pooled, median, f"{r.p_improve:.0%}", f"{r.worst_decile:.3f}"]
+
+
+def _too_few(trials: int, level: float) -> str:
+    return (
+        f"**No verdicts:** {trials} trials per family, fewer than the "
+        f"{min_verdict_trials(level)} a verdict needs at {100 * level:g} % (with fewer, the "
+        "bootstrap interval of the median per-trial ratio misses the true median more than "
+        'twice as often as it should; docs/methods.md, "Per-trial verdicts"). Nothing is bold.'
+    )
 
 
 def families_figure(rows: Sequence[FamilyRow], families: Sequence[str], level: float) -> Figure:

@@ -16,7 +16,7 @@ from qkf.core.config import ConfigError, validate
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, read_manifest, write_manifest
 from qkf.core.plotting import Figure, figure_png, plt
-from qkf.core.stats import average_nees_band
+from qkf.core.stats import average_nees_band, min_verdict_trials
 from qkf.transfer_alignment.benchmark import NEES_COLUMNS, BenchResult, MethodResult
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult
@@ -53,7 +53,13 @@ its own dash pattern and marker as well as its colour."""
 MARKERS: tuple[str, ...] = ("o", "s", "^", "v", "D", "P", "X", "*", "h", "<", ">")
 
 TRIAL_COLUMNS: tuple[str, ...] = ("method", "trial", *METRIC_COLUMNS)
-PAIRED_COLUMNS: tuple[str, ...] = ("method", "baseline", "metric", "ratio", "lo", "hi")
+PAIRED_COLUMNS: tuple[str, ...] = (
+    "method", "baseline", "metric", "ratio", "lo", "hi",
+    "median_ratio", "median_lo", "median_hi", "p_improve", "worst_decile", "verdict",
+)  # fmt: skip
+"""paired.csv: the pooled RMS ratio and its paired interval (SPEC §8), then the per-trial
+comparison (median ratio and interval, P(improve), worst decile) and the verdict
+(docs/methods.md, "Per-trial verdicts")."""
 UNITS = {"att_arcsec": "arcsec", "bias_degph": "deg/h", "sf_ppm": "ppm", "ma_urad": "µrad"}
 
 
@@ -380,7 +386,50 @@ def trial_rows(res: BenchResult) -> list[list[object]]:
 
 
 def paired_rows(res: BenchResult) -> list[list[object]]:
-    return [[p.method, p.baseline, p.metric, p.ratio, p.lo, p.hi] for p in res.paired]
+    return [
+        [p.method, p.baseline, p.metric, p.ratio, p.lo, p.hi, p.median, p.median_lo,
+         p.median_hi, p.p_improve, p.worst_decile, p.verdict]
+        for p in res.paired
+    ]  # fmt: skip
+
+
+def too_few_text(trials: int, level: float) -> str:
+    """Why a table carries no verdict marks with ``trials`` trials at ``level`` (empty when it
+    has enough: :func:`~qkf.core.stats.min_verdict_trials`)."""
+    need = min_verdict_trials(level)
+    if trials >= need:
+        return ""
+    return (
+        f"No verdict marks: {trials} trial(s), fewer than the {need} a verdict needs at "
+        f"{100 * level:g} % (with fewer, the bootstrap interval of the median per-trial ratio "
+        "misses the true median more than twice as often as it should; docs/methods.md, "
+        '"Per-trial verdicts"). The numbers are printed for information only.'
+    )
+
+
+def per_trial_lines(res: BenchResult, metric: str = "state_settled") -> list[str]:
+    """The per-trial table of summary.md: each method against each baseline on ``metric``."""
+    rows = [p for p in res.paired if p.metric == metric]
+    if not rows:
+        return []
+    level = 100 * res.config.run.bootstrap.level
+    lines = [
+        "",
+        f"Against the baselines on `{metric}`, pooled and per trial (paired {level:g} % "
+        "intervals over the same resamples; P(improve) = share of trials with a ratio below "
+        "1; worst decile = 90th percentile of the per-trial ratios; *better* / *worse* needs "
+        "both intervals below / above 1):",
+        "",
+        "| method | baseline | pooled ratio | median ratio | P(improve) | worst decile | verdict |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for p in rows:
+        lines.append(
+            f"| {p.method} | {p.baseline} | {p.ratio:.3f} [{p.lo:.3f}, {p.hi:.3f}] | "
+            f"{p.median:.3f} [{p.median_lo:.3f}, {p.median_hi:.3f}] | {p.p_improve:.0%} | "
+            f"{p.worst_decile:.3f} | {p.verdict} |"
+        )
+    return lines
 
 
 def _recovery(res: BenchResult) -> dict[str, dict[str, float]]:
@@ -443,7 +492,7 @@ def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None)
     for g in GROUP_TITLES:
         head += [f"{g.split('_')[0]} {w} [{UNITS[g]}]" for w in WINDOWS]
     head += ["state settled [× CRLB]", "runtime [s]"]
-    mark = {"better": " ↓", "worse": " ↑", "inconclusive": ""}
+    mark = {"better": " ↓", "worse": " ↑", "inconclusive": "", "unjudged": ""}
     level = 100 * cfg.run.bootstrap.level
     lines = [
         f"# qkf bench: {cfg.name}",
@@ -458,10 +507,14 @@ def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None)
         "root of the mean square over its components. Intervals of every value are in "
         f"summary.csv ({level:g} % bootstrap over trials).",
     ]
-    if verdicts:
+    few = too_few_text(res.trials, cfg.run.bootstrap.level)
+    if verdicts and few:
+        lines.append(few)
+    elif verdicts:
         lines.append(
-            f"↓ / ↑: significantly lower / higher than `kf` (paired {level:g} % interval of the "
-            "RMS ratio below / above 1, paired.csv)."
+            f"↓ / ↑: lower / higher than `kf`, pooled and per trial (the paired {level:g} % "
+            "intervals of the pooled RMS ratio and of the median per-trial ratio both below / "
+            "above 1; paired.csv)."
         )
     lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m in res.methods:
@@ -473,6 +526,7 @@ def summary_markdown(res: BenchResult, trial_names: Sequence[str] | None = None)
     vals = [f"{crlb_summary[c]:.4g}" for c in METRIC_COLUMNS]
     if any(np.isfinite(crlb_summary[c]) for c in METRIC_COLUMNS):  # recorded runs have none
         lines.append("| CRLB (1σ) | – | " + " | ".join(vals) + " | – |")
+    lines += per_trial_lines(res)
     judged = [m for m in res.methods if not np.isnan(m.summary.get("nees_mean", np.nan))]
     if judged:
         lines += [
