@@ -57,8 +57,8 @@ PAIRED_COLUMNS: tuple[str, ...] = (
     "method", "baseline", "metric", "ratio", "lo", "hi",
     "median_ratio", "median_lo", "median_hi", "p_improve", "worst_decile", "verdict",
 )  # fmt: skip
-"""paired.csv: the pooled RMS ratio and its paired interval (SPEC §8), then the per-trial
-comparison (median ratio and interval, P(improve), worst decile) and the verdict
+"""paired.csv: the pooled RMS ratio and its paired interval (docs/architecture.md), then the
+per-trial comparison (median ratio and interval, P(improve), worst decile) and the verdict
 (docs/methods.md, "Per-trial verdicts")."""
 UNITS = {"att_arcsec": "arcsec", "bias_degph": "deg/h", "sf_ppm": "ppm", "ma_urad": "µrad"}
 
