@@ -302,9 +302,13 @@ def test_mixture_draws_its_components_uniformly() -> None:
         "steady_random": 0,
         "thermal_drift_random": 0,
         "ads_mismatch_random": 0,
+        "rotation_only_random": 0,
     }
+    sequences = {"rotation_only_random": 3}  # else 1 + one per jump
     for sc, k in draws:
         assert k is not None and len(sc.calibration_jumps) == jumps.get(FAMILIES[k], 1)
+        n_seq = sequences.get(FAMILIES[k], 1 + len(sc.calibration_jumps))
+        assert len(sc.maneuvers) == 3 * n_seq
         assert bool(sc.calibration_walk.segments) == (FAMILIES[k] == "thermal_drift_random")
         assert (sc.ads.attitude_sigma_arcsec != 3.0) == (FAMILIES[k] == "ads_mismatch_random")
     snap = [sc for sc, k in draws if FAMILIES[k or 0] == "thermal_snap_random"]

@@ -108,7 +108,12 @@ def test_speculative_blocks_equal_stepping_one_epoch_at_a_time() -> None:
     every single epoch (here several re-openings per trial, at different epochs per trial)."""
     cfg = load_config(
         "thermal_snap",
-        ["scenario.duration_s=2000", "adaptive.glr.threshold=3", "adaptive.glr.quiet_s=20"],
+        [
+            "scenario.duration_s=2000",
+            "adaptive.glr.threshold=3",
+            "adaptive.glr.quiet_s=20",
+            "adaptive.glr.inflation=4",
+        ],  # fmt: skip
     )
     data = simulate(cfg, 1, 2)
     fast = glr_filter(cfg, data, cfg.adaptive.glr, block=64)

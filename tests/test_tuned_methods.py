@@ -171,9 +171,9 @@ def test_alarm_burst_key_holds_the_oracle_settings(cache: Path) -> None:
 
 def test_budget() -> None:
     budget = tuning_budget(load_config("thermal_snap_random"))
-    assert (budget.evaluations, budget.trials, budget.epochs) == (50, 8, 3600)
-    assert budget.trial_epochs == 50 * 8 * 3600
-    assert "50 evaluations × 8 trials × 3600 epochs" in str(budget)
+    assert (budget.evaluations, budget.trials, budget.epochs) == (50, 16, 3600)
+    assert budget.trial_epochs == 50 * 16 * 3600
+    assert "50 evaluations × 16 trials × 3600 epochs" in str(budget)
 
 
 def test_every_end_of_every_range_is_a_valid_setting() -> None:

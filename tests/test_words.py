@@ -182,7 +182,12 @@ def test_methods_doc_names_and_describes_every_method(
     )
     # every method and factory has a section of its own: "## Title (`name`)"
     headings = re.findall(r"^## .*\(`([^`]+)`\)$", text, flags=re.M)
-    assert sorted(set(names) - set(headings)) == [], "docs/methods.md: methods without a section"
+    # the variants tuned on the training mixture share one section, which names each of them
+    mixed = _section(text, "## Tuned on the training mixture (`…-mixed`)")
+    covered = {n for n in names if n.endswith("-mixed") and f"`{n}`" in mixed}
+    assert sorted(set(names) - set(headings) - covered) == [], (
+        "docs/methods.md: methods without a section"
+    )
     assert [f for f in factories if not any(h.startswith(f"{f}:") for h in headings)] == []
 
 

@@ -105,7 +105,12 @@ def bench_cmd(
             "(truth-tuned reference), alarm-burst (NIS-alarm schedule), glr (CUSUM reset), "
             "clock (best open-loop schedule), hindsight (per-trial best schedule), "
             "vbakf-tuned, imm-tuned, sage-husa-tuned, covariance-matching-tuned, fading-tuned, "
-            "alarm-burst-tuned, glr-tuned (Optuna-tuned); policy:PATH (a saved "
+            "alarm-burst-tuned, glr-tuned, nis-rule-tuned (Optuna-tuned), nis-rule (NIS "
+            "burst rule), "
+            "kf-tuned-mixed, clock-mixed, alarm-burst-mixed, vbakf-tuned-mixed, "
+            "imm-tuned-mixed, sage-husa-tuned-mixed, covariance-matching-tuned-mixed, "
+            "fading-tuned-mixed, alarm-burst-tuned-mixed, glr-tuned-mixed, "
+            "nis-rule-tuned-mixed (tuned on the training mixture); policy:PATH (a saved "
             "agent); package.module:function (your own); LABEL=SPEC."
         ),
     ] = None,
@@ -459,6 +464,13 @@ def study_cmd(
         ),
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Judging seed (replaces study: seed).")] = None,
+    shift: Annotated[
+        bool,
+        typer.Option(
+            help="A families study: also judge its shift group (shift_families; nothing tunes "
+            "on them, so each tuned baseline runs as its -mixed variant)."
+        ),
+    ] = False,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     resume: Annotated[
         bool, typer.Option(help="Finish an interrupted study in --out (finished cases kept).")
@@ -501,8 +513,10 @@ def study_cmd(
     except ConfigError as exc:
         raise fail(str(exc)) from None
     if kind == "claims":
-        if families is not None or methods is not None or seed is not None or baselines:
-            raise fail("--families, --methods, --baselines and --seed are not for a claims study")
+        if families is not None or methods is not None or seed is not None or baselines or shift:
+            raise fail(
+                "--families, --shift, --methods, --baselines and --seed are not for a claims study"
+            )
         if trials is not None or set_:
             raise fail(
                 "--trials and --set are not for a claims study: its trials and configs are "
@@ -522,8 +536,9 @@ def study_cmd(
     backend_options(backend, workers)
     try:
         spec, configs = load_study(
-            study, list(set_ or []), families=chosen, methods=added, seed=seed, baselines=kept
-        )
+            study, list(set_ or []), families=chosen, methods=added, seed=seed, baselines=kept,
+            shift=shift,
+        )  # fmt: skip
         if spec.kind == "crlb" and trials is not None:
             raise fail(f"--trials: {study} is a CRLB study; it runs no trials")
         for i, (case, cfg) in enumerate(zip(study_cases(spec), configs, strict=True)):
@@ -551,7 +566,7 @@ def study_cmd(
             study, out_path, not quiet, resume, overwrite, on_case,
             trials=trials, sets=list(set_ or []), on_start=on_start, families=chosen,
             extra_methods=added, seed=seed, cache=not no_cache, baselines=kept,
-            backend=backend, workers=workers,
+            backend=backend, workers=workers, shift=shift,
         )  # fmt: skip
     except (ConfigError, MethodOutputError, OutputError) as exc:
         raise fail(str(exc)) from None

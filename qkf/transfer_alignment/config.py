@@ -129,16 +129,49 @@ class RandomJump(StrictModel):
     rotations_after: bool = True
     count: Annotated[int, Field(ge=1, le=MAX_RANDOM_JUMPS)] = 1
     min_separation_s: NonNegativeFloat = 0.0
+    # with rotations_after: the sequence starts this long after its jump (drawn per jump, just
+    # before the sequence); None: at the jump. A change with a quiet stretch after it.
+    rotations_delay_s: Uniform | None = None
 
     @model_validator(mode="after")
     def _fits(self) -> RandomJump:
         # the allowed region must have a positive volume (else the times are not uniform on
         # anything): (count − 1) separations strictly inside the range, as long as there are two
+        if self.rotations_delay_s is not None and (
+            not self.rotations_after or self.rotations_delay_s.low < 0.0
+        ):
+            raise ValueError(
+                "rotations_delay_s: needs rotations_after: true and a non-negative range"
+            )
         span = self.t_s.high - self.t_s.low
         need = (self.count - 1) * self.min_separation_s
         if self.count > 1 and need >= span:
             raise ValueError(
                 f"min_separation_s: {self.count} jumps (count) at least "
+                f"{self.min_separation_s:g} s apart need a t_s range longer than {need:g} s; "
+                f"t_s spans {span:g} s"
+            )
+        return self
+
+
+class RandomRotations(StrictModel):
+    """Rotation sequences without a calibration change, drawn per trial: ``count`` start times
+    in ``t_s``, at least ``min_separation_s`` apart (drawn as :class:`RandomJump`'s times),
+    each a sequence drawn as ``random_events.maneuvers`` (without those, x, y, z at 1 deg/s,
+    100 s each). What keeps "a rotation starts" from always meaning "the calibration changed"
+    (docs/models.md, "Scenario families")."""
+
+    t_s: Uniform
+    count: Annotated[int, Field(ge=1, le=MAX_RANDOM_JUMPS)] = 1
+    min_separation_s: NonNegativeFloat = 0.0
+
+    @model_validator(mode="after")
+    def _fits(self) -> RandomRotations:
+        span = self.t_s.high - self.t_s.low
+        need = (self.count - 1) * self.min_separation_s
+        if self.count > 1 and need >= span:
+            raise ValueError(
+                f"min_separation_s: {self.count} sequences (count) at least "
                 f"{self.min_separation_s:g} s apart need a t_s range longer than {need:g} s; "
                 f"t_s spans {span:g} s"
             )
@@ -164,6 +197,7 @@ class RandomEventParts(StrictModel):
     jump: RandomJump | None = None
     drift: RandomDrift | None = None
     ads_attitude_sigma_arcsec: Uniform | None = None  # the true ADS attitude noise, arcsec
+    rotations: RandomRotations | None = None  # rotation sequences without a change
 
     @model_validator(mode="after")
     def _positive_sigma(self) -> RandomEventParts:
@@ -193,7 +227,8 @@ class RandomEvents(RandomEventParts):
     the mixture component (``mixture`` only: uniform over its entries), then the drift (start,
     length, log-intensity), the rotation sequence (axis order, then rate and duration per
     axis), the jumps (every time first; then per jump in time order: 9 signs, 3 scale factors,
-    6 misalignments and its rotation sequence), the ADS attitude σ. (The drift leads because
+    6 misalignments and its rotation sequence), the ADS attitude σ, the rotations without a
+    change (every time first, then each sequence in time order). (The drift leads because
     ``thermal_drift_random`` gained its rotation draws after its transient: every (seed, trial)
     keeps the transient it had.)
 
@@ -286,6 +321,9 @@ class Scenario(StrictModel):
     gyro: GyroNoise = GyroNoise()
     truth: Truth = Truth()
     randomize_truth: bool = False
+    # with randomize_truth: the σ of the truth's draw relative to the filter's prior σ (1: the
+    # filter's prior is the truth's law; a shift family draws wider)
+    truth_prior_scale: PositiveFloat = 1.0
     calibration_walk: CalibrationWalk = CalibrationWalk()
     calibration_jumps: list[CalibrationJump] = Field(default_factory=list)
     ads: Ads = Ads()
@@ -444,7 +482,8 @@ class TunedConfig(StrictModel):
     """Tuning with the truth on separate tuning seeds: the constant-κ KF (``kf-tuned``), the
     ``clock``, and the seeds and criterion every truth-tuned method shares."""
 
-    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 8
+    # every tuned method's trials (the same budget for all: docs/methods.md, "Tuned baselines")
+    trials: Annotated[int, Field(ge=1, le=MAX_TRIALS)] = 16
     seed: Annotated[int, Field(ge=TUNING_SEEDS[0], lt=TUNING_SEEDS[1])] = 1_000_003
     metric: JudgedMetric = "state_settled"
 
@@ -469,11 +508,27 @@ class GlrConfig(StrictModel):
     next rotation axis) from re-opening P again.
     """
 
-    inflation: Annotated[float, Field(gt=1.0, le=1e6)] = 4.0  # λ: S under a change is λ S
-    threshold: PositiveFloat = 15.0  # h: alarm when the CUSUM statistic exceeds it
-    reset_ppm: PositiveFloat = 300.0  # calibration σ added (in quadrature) on alarm, ppm/µrad
-    quiet_s: NonNegativeFloat = 300.0  # no second reset this soon after one
+    # the defaults are glr-tuned's settings on thermal_snap_random (50 evaluations × 16 tuning
+    # trials, state_settled; docs/methods.md, "GLR reset"), to 4 digits
+    inflation: Annotated[float, Field(gt=1.0, le=1e6)] = 11.74  # λ: S under a change is λ S
+    threshold: PositiveFloat = 73.41  # h: alarm when the CUSUM statistic exceeds it
+    reset_ppm: PositiveFloat = 129.4  # calibration σ added (in quadrature) on alarm, ppm/µrad
+    quiet_s: NonNegativeFloat = 584.6  # no second reset this soon after one
     kappa: PositiveFloat = 1.0  # the filter's constant κ
+
+
+class NisRuleConfig(StrictModel):
+    """The three-number NIS rule (docs/methods.md, "NIS rule"): ``κ_burst`` for ``hold_s``
+    after any decision period whose mean NIS per measurement row exceeds ``nis_threshold``,
+    else ``κ_base``. The defaults are the rule that reproduced the shipped policy
+    ``ppo_mixed_v3`` within 0.5 % on four families (issue 33): κ_base = 0.025 (the action
+    10^-1.6), κ_burst = 100, 20 s after NIS > 4."""
+
+    period_s: PositiveFloat = 10.0  # decision period: NIS averaged and κ held over it
+    nis_threshold: PositiveFloat = 4.0
+    kappa_base: PositiveFloat = 10.0**-1.6
+    kappa_burst: PositiveFloat = 100.0
+    hold_s: NonNegativeFloat = 20.0
 
 
 class HindsightConfig(StrictModel):
@@ -595,6 +650,7 @@ class AdaptiveConfig(StrictModel):
     alarm_burst: AlarmBurstConfig = AlarmBurstConfig()
     optuna: OptunaConfig = OptunaConfig()
     glr: GlrConfig = GlrConfig()
+    nis_rule: NisRuleConfig = NisRuleConfig()
     hindsight: HindsightConfig = HindsightConfig()
     clock: ClockConfig = ClockConfig()
 

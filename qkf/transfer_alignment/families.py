@@ -55,12 +55,41 @@ FAMILIES: tuple[str, ...] = (
     "early_snap_random",
     "thermal_drift_random",
     "ads_mismatch_random",
+    "rotation_only_random",
+    "quiet_snap_random",
+    "threshold_snap_random",
     "mixed_random",
 )
-"""The scenario families (presets of configs/transfer_alignment/), in table order."""
+"""The training families (presets of configs/transfer_alignment/), in table order: the ten
+that ``mixed_random`` draws from, then the mixture itself."""
+
+SHIFT_FAMILIES: tuple[str, ...] = (
+    "shift_late_snap_random",
+    "shift_ads_noise_random",
+    "shift_rotations_random",
+    "shift_prior_random",
+)
+"""The shift group (docs/models.md, "Shift group"): each changes the law of one thing a
+training family draws (jump times, ADS noise, rotation rates and durations, the calibration
+prior). Nothing trains or tunes on them: never in a training mixture, never a tuning run's
+scenario (``tests/test_shift_group.py``); ``qkf study families --shift`` judges them, the zoo's
+evaluation always does."""
 
 REFERENCE = "kf-tuned"
 """The method every ratio is taken against (the best constant κ, tuned with the truth)."""
+SHIFT_REFERENCE = "kf-tuned-mixed"
+"""The reference of a shift family, where nothing tunes on the family itself: the best
+constant κ tuned on the training mixture (:func:`reference_of`)."""
+
+
+def reference_of(values: dict[str, np.ndarray] | Sequence[str]) -> str:
+    """The reference of a family's table: ``kf-tuned`` where it ran, else ``kf-tuned-mixed``
+    (a shift family); ``kf-tuned`` when neither ran (the ratios are then empty)."""
+    if REFERENCE not in values and SHIFT_REFERENCE in values:
+        return SHIFT_REFERENCE
+    return REFERENCE
+
+
 BOUND = "hindsight"
 """The per-trial best κ schedule: the end of the headroom."""
 
@@ -73,7 +102,7 @@ FAMILY_METRICS: tuple[str, ...] = (
     "nees_mean",
 )
 FAMILIES_COLUMNS: tuple[str, ...] = (
-    "family", "method", "metric", "value", "lo", "hi",
+    "family", "method", "metric", "value", "lo", "hi", "reference",
     "ratio_vs_kf_tuned", "ratio_lo", "ratio_hi",
     "median_ratio", "median_lo", "median_hi", "p_improve", "worst_decile", "verdict",
 )  # fmt: skip
@@ -98,10 +127,11 @@ class FamilyRow:
     p_improve: float = math.nan
     worst_decile: float = math.nan
     judged: bool = True
+    reference: str = REFERENCE
 
     @property
     def verdict(self) -> str:
-        """Against kf-tuned: ``better`` / ``worse`` when the pooled and the median intervals
+        """Against the reference: ``better`` / ``worse`` when the pooled and the median intervals
         are both below / above 1 (:func:`~..benchmark.paired_verdict`); empty without a
         ratio."""
         if math.isnan(self.ratio):
@@ -115,8 +145,9 @@ class FamilyRow:
             self.value, self.lo, self.hi, self.ratio, self.ratio_lo, self.ratio_hi,
             self.median, self.median_lo, self.median_hi, self.p_improve, self.worst_decile,
         )  # fmt: skip
-        blank = ("" if math.isnan(v) else v for v in nums)
-        return [self.family, self.method, self.metric, *blank, self.verdict]
+        blank = ["" if math.isnan(v) else v for v in nums]
+        return [self.family, self.method, self.metric, *blank[:3], self.reference, *blank[3:],
+                self.verdict]  # fmt: skip
 
 
 def family_rows(
@@ -139,17 +170,16 @@ def family_rows(
     reps = {m: bootstrap_rms(values[m][:, cols] ** 2, counts) for m in methods}
     point = {m: np.sqrt(np.mean(values[m][:, cols] ** 2, axis=0)) for m in methods}
     judged = n >= min_verdict_trials(level)
+    ref = reference_of(values)
     rows = []
     for res in bench.methods:
         m = res.name
         lo, hi = percentile_interval(reps[m], level)
-        if REFERENCE in values:
+        if ref in values:
             with np.errstate(divide="ignore", invalid="ignore"):
-                ratio = point[m] / point[REFERENCE]
-                r_lo, r_hi = percentile_interval(reps[m] / reps[REFERENCE], level)
-            per = per_trial_comparison(
-                values[m][:, cols], values[REFERENCE][:, cols], counts, level
-            )
+                ratio = point[m] / point[ref]
+                r_lo, r_hi = percentile_interval(reps[m] / reps[ref], level)
+            per = per_trial_comparison(values[m][:, cols], values[ref][:, cols], counts, level)
             trial_part = [per.median, per.median_lo, per.median_hi, per.p_improve,
                           per.worst_decile]  # fmt: skip
         else:
@@ -161,9 +191,10 @@ def family_rows(
                 FamilyRow(family, m, metric, float(point[m][j]), float(lo[j]), float(hi[j]),
                           *pooled_part, float(trial_part[0][j]), float(trial_part[1][j]),
                           float(trial_part[2][j]), float(trial_part[3][j]),
-                          float(trial_part[4][j]), judged)
+                          float(trial_part[4][j]), judged, ref)
             )  # fmt: skip
-        rows.append(FamilyRow(family, m, "nees_mean", float(res.summary.get("nees_mean", np.nan))))
+        nees = float(res.summary.get("nees_mean", np.nan))
+        rows.append(FamilyRow(family, m, "nees_mean", nees, reference=ref))
     return rows
 
 
@@ -229,8 +260,9 @@ def versus_rows(
 def headroom(rows: Sequence[FamilyRow], family: str) -> tuple[float, float] | None:
     """``(RMS_kf-tuned, RMS_hindsight)`` on ``state_settled`` for a family, if both ran."""
     got = {r.method: r.value for r in rows if r.family == family and r.metric == STATE_SETTLED}
-    if REFERENCE in got and BOUND in got:
-        return got[REFERENCE], got[BOUND]
+    ref = reference_of(list(got))
+    if ref in got and BOUND in got:
+        return got[ref], got[BOUND]
     return None
 
 
@@ -247,10 +279,11 @@ def seed_statistics(
     with its stratified bootstrap interval, and the probability of improvement over each
     baseline (P(score_policy > score_baseline), rliable's Mann–Whitney form averaged over
     trials). Empty without seed groups or kf-tuned."""
-    if REFERENCE not in values:
+    reference = reference_of(values)
+    if reference not in values:
         return []
     j = METRIC_COLUMNS.index(STATE_SETTLED)
-    ref = values[REFERENCE][:, j]
+    ref = values[reference][:, j]
     groups: dict[str, list[str]] = {}
     for m in values:
         name, mark, _ = m.partition(SEED_MARK)
@@ -329,12 +362,19 @@ def families_markdown(
         methods = list(dict.fromkeys(r.method for r in mine))
         get = {(r.method, r.metric): r for r in mine}
         room = headroom(rows, fam)
+        ref_name = mine[0].reference
         lines += ["", f"## {fam}", ""]
+        if ref_name != REFERENCE:
+            lines += [
+                f"A shift family: nothing tunes on it, so every tuned baseline is its `-mixed` "
+                f"variant (tuned on the training mixture) and the ratios are to `{ref_name}`.",
+                "",
+            ]
         if room is not None:
             ref, best = room
             lines.append(
-                f"Headroom: {REFERENCE} {ref:.4g} → {BOUND} {best:.4g} "
-                f"({100 * (1 - best / ref):.1f} % of {REFERENCE})."
+                f"Headroom: {ref_name} {ref:.4g} → {BOUND} {best:.4g} "
+                f"({100 * (1 - best / ref):.1f} % of {ref_name})."
                 if ref > 0
                 else ""
             )

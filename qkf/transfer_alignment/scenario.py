@@ -36,6 +36,7 @@ from qkf.transfer_alignment.config import (
     RandomEvents,
     RandomJump,
     RandomManeuvers,
+    RandomRotations,
     Scenario,
     WalkSegment,
 )
@@ -183,7 +184,7 @@ def _sequence(start: float, spec: RandomManeuvers, rng: np.random.Generator) -> 
     return out
 
 
-def _jump_times(j: RandomJump, rng: np.random.Generator) -> np.ndarray:
+def _jump_times(j: RandomJump | RandomRotations, rng: np.random.Generator) -> np.ndarray:
     """``count`` sorted jump times, s, at least ``min_separation_s`` apart: uniform on the
     allowed region (the construction is in :class:`~..config.RandomJump`). With one jump it is
     one ``U[low, high]`` draw, as it has always been."""
@@ -225,12 +226,18 @@ def _draw_parts(sc: Scenario, ev: RandomEventParts, rng: np.random.Generator) ->
                 )
             )
             if j.rotations_after:
-                maneuvers += _sequence(t_jump, again, rng)
+                delay = j.rotations_delay_s
+                start = t_jump + (0.0 if delay is None else rng.uniform(delay.low, delay.high))
+                maneuvers += _sequence(start, again, rng)
         update["calibration_jumps"] = jumps
     if ev.ads_attitude_sigma_arcsec is not None:
         a = ev.ads_attitude_sigma_arcsec
         sigma = float(rng.uniform(a.low, a.high))
         update["ads"] = sc.ads.model_copy(update={"attitude_sigma_arcsec": sigma})
+    if ev.rotations is not None:
+        again = ev.maneuvers or RandomManeuvers(shuffle_axes=False)
+        for t_start in _jump_times(ev.rotations, rng).tolist():
+            maneuvers += _sequence(t_start, again, rng)
     update["maneuvers"] = maneuvers
     return sc.model_copy(update=update)
 
@@ -310,8 +317,9 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
             jump_t[row] = first_jump_s(sc_trial)
             walk_sigma = walk_b[row]
         if tp.randomize_truth:
-            b0 = g["truth"].normal(0.0, tp.prior_sigma_b, 3)
-            p0 = g["truth"].normal(0.0, tp.prior_sigma_p, 9)
+            scale = sc.truth_prior_scale  # 1.0 multiplies exactly: the draws stay bit for bit
+            b0 = g["truth"].normal(0.0, scale * tp.prior_sigma_b, 3)
+            p0 = g["truth"].normal(0.0, scale * tp.prior_sigma_p, 9)
         else:
             b0, p0 = tp.b0, tp.p0
         db = g["bias_walk"].normal(0.0, tp.sigma_u * np.sqrt(dt), (n - 1, 3))

@@ -111,6 +111,8 @@ class Study(StrictModel):
     metric: str = "state_settled"
     cases: list[Case] = Field(default_factory=list)
     families: list[str] = Field(default_factory=list)
+    # kind: families: the shift group, judged with --shift only (docs/models.md, "Shift group")
+    shift_families: list[str] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _shape(self) -> Study:
@@ -124,7 +126,7 @@ class Study(StrictModel):
                 raise ValueError("base: required")
             if not self.cases:
                 raise ValueError("cases: at least one case")
-            if self.families:
+            if self.families or self.shift_families:
                 raise ValueError("families: only for kind: families")
         return self
 
@@ -136,6 +138,8 @@ class CaseRun:
     label: str
     folder: str
     cfg: Config
+    # the case's own method specs, when not the study's (a shift family: shift_methods)
+    methods: tuple[str, ...] | None = None
 
 
 @dataclass
@@ -336,11 +340,12 @@ def run_cases(
         if on_start is not None:
             on_start(i, len(cases), case)
         folder = out / case.folder
-        reused = resume and methods is not None and _finished(case, folder, methods, trials, seed)
+        own = methods if case.methods is None or methods is None else list(case.methods)
+        reused = resume and own is not None and _finished(case, folder, own, trials, seed)
         if reused:
             result = CaseResult(case, crlb(case.cfg), load_bench(folder))
         else:
-            result = run_case(case, methods, trials, seed, **bench)
+            result = run_case(case, own, trials, seed, **bench)
             write_case(result, folder)
         results.append(result)
         if on_case is not None:
@@ -439,19 +444,21 @@ def load_study(
     seed: int | None = None,
     base_methods: list[str] | None = None,
     baselines: list[str] | None = None,
+    shift: bool = False,
 ) -> tuple[Study, list[Config]]:
     """Read a study (a path or a preset name) and the config of each case; ``sets``
     (``dotted.key=value``) are applied to every case after the case's own. ``families``: run
     only these families of a families study; ``base_methods``: replace the study's methods
     (``methods`` are added after them); ``methods``: added to the study's methods;
     ``seed``: replaces the study's seed (each recorded in the returned study); ``baselines``:
-    keep only these of the study's methods (by label), before ``methods`` are added.
+    keep only these of the study's methods (by label), before ``methods`` are added;
+    ``shift``: a families study also runs its ``shift_families`` (after ``families``).
 
     ``ConfigError`` names the study file and, for a case, its index and label.
     """
     path = presets.resolve(path, STUDIES)
     study = validate(Study, read_yaml_mapping(path, "study"), str(path), "study")
-    study = _narrow(path, study, families, methods, seed, base_methods, baselines)
+    study = _narrow(path, study, families, methods, seed, base_methods, baselines, shift)
     # a CRLB study plots the same summary columns (of the bound), so the same names apply
     if study.metric not in METRIC_COLUMNS:
         raise ConfigError(f"{path}: metric: must be one of {', '.join(METRIC_COLUMNS)}")
@@ -487,10 +494,11 @@ def _narrow(
     seed: int | None,
     base_methods: list[str] | None = None,
     baselines: list[str] | None = None,
+    shift: bool = False,
 ) -> Study:
     """The study with the command line's choices applied: only the chosen families of a
-    families study, ``base_methods`` instead of its methods, only the ``baselines`` among them,
-    ``methods`` added, the seed."""
+    families study (the shift group with ``shift``), ``base_methods`` instead of its methods,
+    only the ``baselines`` among them, ``methods`` added, the seed."""
     update: dict[str, Any] = {}
     if base_methods is not None:
         if study.kind == "crlb":
@@ -500,16 +508,29 @@ def _narrow(
         study = study.model_copy(update={"methods": list(base_methods)})
     if baselines is not None:
         study = study.model_copy(update={"methods": pick_baselines(study.methods, baselines)})
+    if shift and study.kind != "families":
+        raise ConfigError(f"--shift: {path} is a {study.kind} study, not a families study")
+    if shift and not study.shift_families:
+        raise ConfigError(f"--shift: {path} lists no shift_families")
+    known = [*study.families, *study.shift_families]
     if families is not None:
         if study.kind != "families":
             raise ConfigError(f"--families: {path} is a {study.kind} study, not a families study")
-        unknown = [f for f in families if f not in study.families]
+        unknown = [f for f in families if f not in known]
         if unknown or not families:
             raise ConfigError(
                 f"--families: {', '.join(unknown) or 'none given'}: not a family of {path.name}; "
-                f"known: {', '.join(study.families)}"
+                f"known: {', '.join(known)}"
             )
-        update["families"] = list(dict.fromkeys(families))
+        chosen = list(dict.fromkeys(families))
+        update["families"] = [f for f in chosen if f in study.families]
+        update["shift_families"] = [f for f in chosen if f in study.shift_families]
+    elif not shift:
+        update["shift_families"] = []
+    if study.kind == "families" and not (
+        update.get("families", study.families) or update.get("shift_families", study.shift_families)
+    ):
+        raise ConfigError(f"--families: {path}: no family left to run")
     if methods:
         if study.kind == "crlb":
             raise ConfigError(f"--methods: {path} is a CRLB study; it runs no method")
@@ -541,8 +562,29 @@ def pick_baselines(specs: list[str], wanted: list[str]) -> list[str]:
 def study_cases(study: Study) -> list[Case]:
     """The cases of a study: its own, or one per family (label and base = the preset name)."""
     if study.kind == "families":
-        return [Case(label=f, base=f) for f in study.families]
+        return [Case(label=f, base=f) for f in [*study.families, *study.shift_families]]
     return list(study.cases)
+
+
+def shift_methods(specs: list[str]) -> tuple[str, ...]:
+    """The methods of a shift family (nothing tunes on it): each method that tunes on the
+    judged config's tuning seeds (:data:`~qkf.transfer_alignment.methods.TUNABLE`, and the
+    ``oracle``, which has no ``-mixed`` variant) is replaced by its ``-mixed`` twin, tuned on
+    the training mixture (:mod:`~qkf.transfer_alignment.methods.on_mixture`); the oracle is
+    left out."""
+    from qkf.transfer_alignment.methods import MIXED_SUFFIX, TUNABLE
+
+    out: list[str] = []
+    for spec in specs:
+        label, sep, target = spec.partition("=")
+        name = (target if sep else spec).strip()
+        if name == "oracle":
+            continue
+        if name in TUNABLE:
+            twin = name + MIXED_SUFFIX
+            spec = f"{label.strip()}{MIXED_SUFFIX}={twin}" if sep else twin
+        out.append(spec)
+    return tuple(dict.fromkeys(out))
 
 
 def _check_labels(path: Path, study: Study) -> None:
@@ -596,6 +638,7 @@ def run_study(
     baselines: list[str] | None = None,
     backend: str = "local",
     workers: int | None = None,
+    shift: bool = False,
 ) -> list[Path]:
     """Run every case (each case folder written as soon as it is done), then ``study.csv``,
     ``study.png`` (a families study: ``families.csv``, ``families.md``, ``families.png``) and
@@ -606,15 +649,17 @@ def run_study(
     :func:`run_benchmark` (trials, and the methods' tunings, side by side)."""
     study, configs = load_study(
         path, sets, families=families, methods=extra_methods, seed=seed,
-        base_methods=base_methods, baselines=baselines,
+        base_methods=base_methods, baselines=baselines, shift=shift,
     )  # fmt: skip
     out = Path(out_dir)
     n = study.trials if trials is None else trials
     methods = study.methods if study.kind != "crlb" else None
+    shifted = shift_methods(study.methods) if study.kind == "families" else None
     cases = [
-        CaseRun(case.label, case_folder(case.label), cfg)
+        CaseRun(case.label, case_folder(case.label), cfg,
+                shifted if case.label in study.shift_families else None)
         for case, cfg in zip(study_cases(study), configs, strict=True)
-    ]
+    ]  # fmt: skip
     with _output(out, resume, overwrite, "study") as where:
         folders = [{"label": c.label, "folder": c.folder} for c in cases]
 
@@ -673,7 +718,7 @@ def write_families(
         values = read_trials_csv(folder)  # once per case, for every table below
         rows += family_rows(case.label, folder, values, boot.resamples, boot.level, study.seed)
         versus += versus_rows(case.label, values, focus, boot.resamples, boot.level, study.seed)
-        stats = seed_statistics(values, labels, boot.level, seed=study.seed)
+        stats = seed_statistics(values, list(values), boot.level, seed=study.seed)
         if stats:
             seeds[case.label] = stats
     notes: dict[str, str] = {}

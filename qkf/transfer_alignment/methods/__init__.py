@@ -50,6 +50,8 @@ from qkf.transfer_alignment.methods.glr import run_glr
 from qkf.transfer_alignment.methods.hindsight import run_hindsight
 from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
+from qkf.transfer_alignment.methods.nis_rule import run_nis_rule
+from qkf.transfer_alignment.methods.on_mixture import MIXED_SUFFIX, TunedOnMixture
 from qkf.transfer_alignment.methods.oracle import run_oracle
 from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
@@ -89,6 +91,11 @@ METHODS.register("glr", run_glr)
 """A flight method (a CUSUM on the innovations that re-opens the calibration block of P);
 named explicitly, beside its tuned variant ``glr-tuned``."""
 
+METHODS.register("nis-rule", run_nis_rule)
+"""A flight method: κ_burst for hold_s after any NIS alarm, else κ_base (docs/methods.md, "NIS
+rule"); the simplest rule that mimics the learned policies. Named explicitly, beside
+``nis-rule-tuned``."""
+
 METHODS.register("clock", run_clock)
 """A yardstick, not a flight method: the best open-loop κ(t), tuned with the truth."""
 
@@ -99,7 +106,13 @@ for _name, _tuned in TUNED_METHODS.items():
     METHODS.register(_name, _tuned)
 """The ``-tuned`` variants: hyperparameters tuned by Optuna on the tuning seeds (cached)."""
 
-YARDSTICKS: tuple[str, ...] = ("oracle", "clock", "hindsight")
+TUNABLE: tuple[str, ...] = ("kf-tuned", "clock", "alarm-burst", *TUNED_METHODS)
+"""The methods that tune on the tuning seeds of the config they are given: each also has a
+``…-mixed`` variant tuned on the training mixture (:mod:`.on_mixture`)."""
+for _name in TUNABLE:
+    METHODS.register(_name + MIXED_SUFFIX, TunedOnMixture(_name + MIXED_SUFFIX, METHODS[_name]))
+
+YARDSTICKS: tuple[str, ...] = ("oracle", "clock", "clock-mixed", "hindsight")
 """References that read the truth (per trial or on the tuning seeds): never flight methods."""
 
 METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(

@@ -28,7 +28,8 @@ Search spaces (:data:`TUNED_METHODS`; a range is widened to hold θ₀ if it lie
 
 The study runs once per benchmark, in ``prepare`` (driver process), and its result is cached as
 JSON under ``$QKF_CACHE_DIR/tuning/`` (default ``~/.cache/qkf/tuning/``), one file per key: the
-method, the scenario and filter sections, ``run.settled_s`` (it sets the judged window), the
+method, the scenario and filter sections, ``run.settled_s`` and ``run.settle_factor`` (they set
+the judged window), the
 action set, ``adaptive.tuned``, ``adaptive.optuna``, the method's own settings sections, the
 search space and :data:`CACHE_VERSION`. A file is written atomically (temporary file, then
 ``os.replace``); a cached result is used only if its recorded key equals the wanted one and its
@@ -64,6 +65,7 @@ from qkf.transfer_alignment.methods.covariance_matching import run_covariance_ma
 from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.glr import run_glr
 from qkf.transfer_alignment.methods.imm import run_imm
+from qkf.transfer_alignment.methods.nis_rule import run_nis_rule
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, tune_oracle
 from qkf.transfer_alignment.methods.sage_husa import run_sage_husa
 from qkf.transfer_alignment.methods.vbakf import run_vbakf
@@ -72,9 +74,10 @@ from qkf.transfer_alignment.scenario import ScenarioData, simulate
 if TYPE_CHECKING:
     import optuna
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 """Part of every cache key: raise it when a method's behaviour changes, so that no study of
-the old code is reused."""
+the old code is reused. 2: the judged window and weights became per trial
+(:mod:`qkf.transfer_alignment.settled`)."""
 
 Setting = float | int | bool | str
 ParamKind = Literal["float", "log", "int", "log_int", "memory", "choice", "action"]
@@ -375,6 +378,7 @@ def cache_key(tuner: OptunaTuned, cfg: Config) -> dict[str, Any]:
         "scenario": cfg.scenario.model_dump(mode="json"),
         "filter": cfg.filter.model_dump(mode="json"),
         "settled_s": cfg.run.settled_s,
+        "settle_factor": cfg.run.settle_factor,
         "actions": adaptive.actions.model_dump(mode="json"),
         "tuned": adaptive.tuned.model_dump(mode="json"),
         "optuna": adaptive.optuna.model_dump(mode="json"),
@@ -559,6 +563,17 @@ _VARIANTS: tuple[OptunaTuned, ...] = (
             Param("reset_ppm", "log", 10.0, 3000.0),  # σ_r, ppm or µrad
             Param("quiet_s", "float", 0.0, 1800.0),
             KAPPA,
+        ),
+    ),
+    OptunaTuned(
+        "nis-rule-tuned",
+        run_nis_rule,
+        "nis_rule",
+        (
+            Param("nis_threshold", "log", 1.5, 50.0),  # mean NIS per row of a period
+            Param("kappa_base", "action"),
+            Param("kappa_burst", "action"),
+            Param("hold_s", "log", 10.0, 1600.0),
         ),
     ),
 )

@@ -1,0 +1,87 @@
+r"""Baselines tuned on the training mixture: the ``…-mixed`` variants (docs/methods.md, "Tuned
+baselines").
+
+A tunable baseline (``kf-tuned``, ``clock``, ``alarm-burst``, the ``-tuned`` variants) tunes on
+the *judged* config's tuning seeds: it is told the family, which a policy trained once on the
+mixture is not. Its ``-mixed`` variant tunes on the same tuning seeds of the *training mixture*
+instead, and then runs on the judged trials with what it found::
+
+    θ*_mixed = tune(cfg with scenario.random_events := those of TRAINING_MIXTURE)
+
+Everything else of the judged config (filter, noise, duration, tuning budget) is kept, so the
+variant differs from its per-family twin only in what it was tuned on: like for like with a
+policy trained on the mixture.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+from qkf.transfer_alignment.config import Config, RandomEvents
+from qkf.transfer_alignment.methods.base import Method, MethodOutput, prepare
+from qkf.transfer_alignment.scenario import ScenarioData
+
+TRAINING_MIXTURE = "mixed_random"
+"""The preset whose families every policy of the zoo trains on (docs/zoo.md)."""
+
+MIXED_SUFFIX = "-mixed"
+
+
+@lru_cache(maxsize=1)
+def _mixture_events() -> RandomEvents:
+    from qkf.transfer_alignment.config import load_config
+
+    events = load_config(TRAINING_MIXTURE).scenario.random_events
+    if events is None:  # the preset is a mixture: a broken preset is a bug, said plainly
+        raise ValueError(f"the training mixture {TRAINING_MIXTURE} draws no events")
+    return events
+
+
+def mixture_config(cfg: Config) -> Config:
+    """``cfg`` with the training mixture's drawn events in place of its own."""
+    scenario = cfg.scenario.model_copy(update={"random_events": _mixture_events()})
+    return cfg.model_copy(update={"scenario": scenario})
+
+
+@dataclass(frozen=True)
+class MixtureTuned:
+    """A method prepared on the training mixture: runs it and says so in its notes."""
+
+    method: Method
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        out = self.method(cfg, data)
+        for key, note in out.notes.items():
+            out.notes[key] = f"{note} [tuned on the training mixture {TRAINING_MIXTURE}]"
+        return out
+
+
+@dataclass(frozen=True)
+class TunedOnMixture:
+    """The ``-mixed`` variant of a tunable method ``base`` (named ``name``): :meth:`prepare`
+    tunes ``base`` on :func:`mixture_config`; the prepared method runs on the judged data."""
+
+    name: str
+    base: Method
+
+    def prepare(self, cfg: Config) -> Method:
+        return MixtureTuned(prepare(self.base, mixture_config(cfg)))
+
+    def cache_token(self) -> Any:
+        from qkf.core.results_cache import describe
+
+        return {"tuned_on": TRAINING_MIXTURE, "name": self.name, "base": describe(self.base)}
+
+    # the base's settings declaration (methods.base.uses_settings) is the variant's too
+    @property
+    def settings_section(self) -> Any:
+        return getattr(self.base, "settings_section", None)
+
+    @property
+    def settings(self) -> Any:
+        return getattr(self.base, "settings", None)
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        return self.prepare(cfg)(cfg, data)
