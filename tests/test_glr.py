@@ -113,7 +113,7 @@ def test_speculative_blocks_equal_stepping_one_epoch_at_a_time() -> None:
             "adaptive.glr.threshold=3",
             "adaptive.glr.quiet_s=20",
             "adaptive.glr.inflation=4",
-        ],  # fmt: skip
+        ],
     )
     data = simulate(cfg, 1, 2)
     fast = glr_filter(cfg, data, cfg.adaptive.glr, block=64)
