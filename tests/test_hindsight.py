@@ -17,7 +17,12 @@ from qkf.transfer_alignment.methods.base import action_values, prepare, validate
 from qkf.transfer_alignment.methods.clock import run_clock
 from qkf.transfer_alignment.methods.covariance import covariance_epochs
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
-from qkf.transfer_alignment.methods.hindsight import hindsight_plan, run_hindsight
+from qkf.transfer_alignment.methods.hindsight import (
+    certificate,
+    hindsight_plan,
+    restart_schedule,
+    run_hindsight,
+)
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, run_oracle, run_schedule
 from qkf.transfer_alignment.methods.schedule_search import attitude_error, snap, switches
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
@@ -95,7 +100,7 @@ def test_two_blocks_against_every_schedule() -> None:
 
 def test_stages_never_get_worse_and_kappa_is_on_the_grid() -> None:
     cfg = tiny("adaptive.hindsight.period_s=50", "adaptive.hindsight.blocks_s=[300, 150, 50]",
-               "adaptive.hindsight.focus_s=100")  # fmt: skip
+               "adaptive.hindsight.focus_s=100", "adaptive.hindsight.restarts=0")  # fmt: skip
     data = simulate(cfg, 4, 2)
     out = run_hindsight(cfg, data)
     scores, stages = out.logs["hindsight_scores"], out.logs["hindsight_stages"]
@@ -110,8 +115,32 @@ def test_stages_never_get_worse_and_kappa_is_on_the_grid() -> None:
     assert "hindsight" in out.notes and "per trial" in out.notes["hindsight"]
 
 
+def test_restarts_keep_the_best_search_and_certify_the_spread() -> None:
+    """Two restarts from random schedules: each trial's output is the best of the three
+    searches' schedules, the certificate is their spread, and a restart's start is drawn per
+    trial from its own seed (the same whatever batch the trial is in)."""
+    cfg = tiny("adaptive.hindsight.period_s=50", "adaptive.hindsight.blocks_s=[300, 50]",
+               "adaptive.hindsight.restarts=2")  # fmt: skip
+    data = simulate(cfg, 4, 3)
+    out = run_hindsight(cfg, data)
+    final = out.logs["hindsight_searches"]
+    assert final.shape == (3, 3)
+    np.testing.assert_allclose(estimate_scores(cfg, out.est, data), final.min(axis=1), rtol=1e-10)
+    spread = (final.max(axis=1) - final.min(axis=1)) / final.min(axis=1)
+    np.testing.assert_allclose(certificate(final), spread, rtol=1e-12)
+    note = out.notes["hindsight_certificate"]
+    assert note.startswith("best κ schedule found: the best of 3 searches per trial")
+    one = simulate(cfg, 4, [1])
+    np.testing.assert_array_equal(
+        restart_schedule(cfg, one, 2)[0], restart_schedule(cfg, data, 2)[1]
+    )
+    assert not np.array_equal(restart_schedule(cfg, data, 1), restart_schedule(cfg, data, 2))
+    assert np.isin(restart_schedule(cfg, data, 1), action_values(cfg)).all()
+
+
 def test_a_start_is_snapped_and_never_lost() -> None:
-    cfg = tiny("adaptive.hindsight.period_s=150", "adaptive.hindsight.blocks_s=[450]")
+    cfg = tiny("adaptive.hindsight.period_s=150", "adaptive.hindsight.blocks_s=[450]",
+               "adaptive.hindsight.restarts=0")  # fmt: skip
     data = simulate(cfg, 8, 2)
     values = action_values(cfg)
     # off the grid: 0.9 → 1, 12 → 10, and the value at each period's first epoch counts

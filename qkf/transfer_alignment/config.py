@@ -543,6 +543,11 @@ class HindsightConfig(StrictModel):
     ``screen_s``: run each candidate only this long past its block, and carry on to the end of
     the run only the ``screen_keep`` best of each trial by then; ``null`` runs every candidate
     to the end (exact coordinate descent, slower).
+
+    ``restarts``: that many more searches per trial, each from a random schedule (one action
+    per ``blocks_s[0]``, uniform, seeded by the run's seed, the trial and the restart) instead of
+    the best constant; the best of all searches is the schedule, and the spread of their optima
+    is the certificate printed beside it.
     """
 
     period_s: PositiveFloat = 10.0  # the agents' decision period
@@ -551,6 +556,9 @@ class HindsightConfig(StrictModel):
     focus_s: PositiveFloat | None = 100.0
     screen_s: PositiveFloat | None = None
     screen_keep: Annotated[int, Field(ge=1, le=1000)] = 3
+    # searches from a random start (per trial, seeded); the best of all is kept, and how far
+    # apart their optima are is the certificate (docs/methods.md, "Hindsight")
+    restarts: Annotated[int, Field(ge=0, le=20)] = 1
 
     @model_validator(mode="after")
     def _whole_periods(self) -> HindsightConfig:

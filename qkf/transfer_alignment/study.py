@@ -722,13 +722,19 @@ def write_families(
         if stats:
             seeds[case.label] = stats
     notes: dict[str, str] = {}
+    certificates: dict[str, str] = {}  # per family: hindsight's restarts (it differs by family)
     for r in results or []:
         for m in r.bench.methods if r.bench is not None else []:
-            for text in m.notes.values():
-                notes.setdefault(m.name, text)
+            for key, text in m.notes.items():
+                if key == "hindsight_certificate":
+                    certificates[r.case.label] = text
+                else:
+                    notes.setdefault(m.name, text)
     families = [c.label for c in cases]
     atomic_write_csv(where / "families.csv", FAMILIES_COLUMNS, [r.cells() for r in rows])
-    text = families_markdown(rows, families, trials, study.seed, boot.level, notes, seeds, versus)
+    text = families_markdown(
+        rows, families, trials, study.seed, boot.level, notes, seeds, versus, certificates
+    )
     atomic_write_bytes(where / "families.md", text.encode())
     png = figure_png(families_figure(rows, families, boot.level))
     atomic_write_bytes(where / "families.png", png)

@@ -6,11 +6,13 @@ the *judged* config's tuning seeds: it is told the family, which a policy traine
 mixture is not. Its ``-mixed`` variant tunes on the same tuning seeds of the *training mixture*
 instead, and then runs on the judged trials with what it found::
 
-    θ*_mixed = tune(cfg with scenario.random_events := those of TRAINING_MIXTURE)
+    θ*_mixed = tune(cfg with scenario := TRAINING_MIXTURE's, at cfg's dt_s and duration_s)
 
-Everything else of the judged config (filter, noise, duration, tuning budget) is kept, so the
-variant differs from its per-family twin only in what it was tuned on: like for like with a
-policy trained on the mixture.
+The whole scenario is the mixture's (its laws of events, ADS noise and truth prior: a shift
+family's own law never reaches the tuning); the filter, the action set and the tuning budget
+are the judged config's. So the variant differs from its per-family twin only in what it was
+tuned on (like for like with a policy trained on the mixture), and one tuning serves every
+family judged with the same filter.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-from qkf.transfer_alignment.config import Config, RandomEvents
+from qkf.transfer_alignment.config import Config, Scenario
 from qkf.transfer_alignment.methods.base import Method, MethodOutput, prepare
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -30,19 +32,21 @@ MIXED_SUFFIX = "-mixed"
 
 
 @lru_cache(maxsize=1)
-def _mixture_events() -> RandomEvents:
+def _mixture_scenario() -> Scenario:
     from qkf.transfer_alignment.config import load_config
 
-    events = load_config(TRAINING_MIXTURE).scenario.random_events
-    if events is None:  # the preset is a mixture: a broken preset is a bug, said plainly
+    scenario = load_config(TRAINING_MIXTURE).scenario
+    if scenario.random_events is None:  # the preset is a mixture: a broken preset is a bug
         raise ValueError(f"the training mixture {TRAINING_MIXTURE} draws no events")
-    return events
+    return scenario
 
 
 def mixture_config(cfg: Config) -> Config:
-    """``cfg`` with the training mixture's drawn events in place of its own."""
-    scenario = cfg.scenario.model_copy(update={"random_events": _mixture_events()})
-    return cfg.model_copy(update={"scenario": scenario})
+    """``cfg`` with the training mixture's scenario (its laws of events, noise and truth) in
+    place of its own, at the judged run's step and duration; the filter and every other
+    section stay the judged config's."""
+    update = {"dt_s": cfg.scenario.dt_s, "duration_s": cfg.scenario.duration_s}
+    return cfg.model_copy(update={"scenario": _mixture_scenario().model_copy(update=update)})
 
 
 @dataclass(frozen=True)

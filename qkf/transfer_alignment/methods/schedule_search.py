@@ -77,7 +77,9 @@ class SearchPlan:
     stop a candidate as soon as it cannot beat its trial's incumbent (the same result, fewer
     epochs filtered; :meth:`_Search.rollout`); ``screen``: in a per-trial search, run every
     candidate only ``screen`` epochs past its block, then carry on to the end only the
-    ``keep`` of each trial whose sums are lowest by then (None: every candidate to the end).
+    ``keep`` of each trial whose sums are lowest by then (None: every candidate to the end);
+    ``constants``: start from the best of the constant schedules and the given starts (else
+    from the starts alone: a restart of :mod:`..hindsight`).
     Screening is a heuristic: a candidate behind at the screen and ahead at the end is missed
     (the filter forgets the block's κ within a few hundred seconds, so it is rare; measured in
     docs/methods.md, "Hindsight").
@@ -92,6 +94,7 @@ class SearchPlan:
     stop_early: bool = True
     screen: int | None = None
     keep: int = 3
+    constants: bool = True  # start from the best of the constants and the starts (else starts)
 
 
 @dataclass
@@ -315,7 +318,10 @@ class _Search:
         """The best of the constant schedules and ``starts`` (each (B, T) action indices):
         ``(choice (B, T), scores (B,), S (B,))``."""
         b, t, a = self.data.n_trials, self.n_periods, self.values.size
-        options = [np.full((b, t), i) for i in range(a)] + [np.asarray(s) for s in starts]
+        constants = [np.full((b, t), i) for i in range(a)] if self.plan.constants else []
+        options = constants + [np.asarray(s) for s in starts]
+        if not options:
+            raise ValueError("a search without the constants needs a starting schedule")
         o = len(options)
         trials = np.repeat(np.arange(b), o)  # trial-major: a trial's rows adjacent
         sched = np.stack(options, axis=1).reshape(b * o, t)
