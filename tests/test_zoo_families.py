@@ -20,7 +20,7 @@ from agents.zoo import load_entry
 from agents.zoo.entry import FamiliesJudge, ZooSpec, study_methods
 from qkf.cli import app
 from qkf.core.config import ConfigError, validate
-from qkf.transfer_alignment.families import FAMILIES
+from qkf.transfer_alignment.families import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.report import read_trials_csv
 
@@ -183,6 +183,11 @@ def test_families_card_recomputed_from_trials(tmp_path: Path) -> None:
         assert float(row["value"]) == pytest.approx(ratio, rel=1e-5)
         pk = next(r for r in mine if r["quantity"] == "p_improve" and r["versus"] == "kf-tuned")
         assert f"| kf-tuned | {float(pk['value']):.2f} | {ratio:.3f} [" in section
+
+    # the shift group is always judged, with the -mixed twins of the tuned baselines
+    for shift in SHIFT_FAMILIES:
+        assert set(read_trials_csv(study / shift)) == {"kf", "kf-tuned-mixed", "fam#0", "fam#1"}
+        assert f"### {shift}" in card
 
     # an interrupted evaluation keeps its finished families: one family's folder gone (as if
     # the run stopped there), the next run into the same work folder reruns only that one

@@ -159,7 +159,7 @@ def check_families(
     try:
         study, configs = load_study(
             FAMILIES_STUDY, run.sets, families=run.families, methods=run.policies,
-            seed=run.seed, base_methods=run.baselines,
+            seed=run.seed, base_methods=run.baselines, shift=True,
         )  # fmt: skip
         for case, cfg in zip(study_cases(study), configs, strict=True):
             try:
@@ -283,8 +283,9 @@ def evaluate_families(
     cache: bool = False,
     baselines: list[str] | None = None,
 ) -> Path:
-    """The entry's families study (``qkf study families`` with the entry's families, trials,
-    seed, its baselines as the methods and ``NAME#SEED=policy:PATH`` per trained seed) into
+    """The entry's families study (``qkf study families --shift`` with the entry's families,
+    always the shift group, trials, seed, its baselines as the methods and
+    ``NAME#SEED=policy:PATH`` per trained seed) into
     ``WORK/families/``; returns it. A family that an earlier, interrupted run there finished
     with the same config, methods, trials and seed is kept, not rerun (``run_study``'s
     resume); anything else of an earlier study there is replaced."""
@@ -304,7 +305,7 @@ def evaluate_families(
         FAMILIES_STUDY, out, progress, resume=True, overwrite=False, on_case=on_case,
         trials=run.trials,
         sets=run.sets, on_start=on_start, families=run.families, extra_methods=run.policies,
-        seed=run.seed, base_methods=run.baselines, cache=cache,
+        seed=run.seed, base_methods=run.baselines, cache=cache, shift=True,
     )  # fmt: skip
     return out
 
@@ -354,18 +355,23 @@ def evaluate_entry(
             rows += judge_summary(entry, case, folder / "trials.csv")
         write_summary(rows, dst / "zoo_summary.csv")
     if fam is not None:
+        from qkf.transfer_alignment.families import SHIFT_FAMILIES
         from qkf.transfer_alignment.study import case_folder
 
-        say(f"judging on the families {', '.join(fam.families)}, benchmark seed {fam.seed}")
+        judged = [*fam.families, *(f for f in SHIFT_FAMILIES if f not in fam.families)]
+        say(
+            f"judging on the families {', '.join(fam.families)} and the shift group "
+            f"{', '.join(SHIFT_FAMILIES)}, benchmark seed {fam.seed}"
+        )
         study = evaluate_families(entry, work, trials, progress, say, cache, baselines)
-        for family in fam.families:
+        for family in judged:
             _copy(
                 study / case_folder(family) / "trials.csv",
                 dst / f"families_{family}_seed{fam.seed}_trials.csv",
             )
         _copy(study / "families.md", dst / f"families_seed{fam.seed}.md")
         _copy(study / "families.csv", dst / f"families_seed{fam.seed}.csv")
-        rows = families_summary(entry, study, list(fam.families), entry.selected_seed())
+        rows = families_summary(entry, study, judged, entry.selected_seed())
         write_summary(rows, dst / "zoo_families.csv")
     card = write_card(entry, work)
     if update_entry:

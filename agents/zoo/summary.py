@@ -42,10 +42,15 @@ from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 
 RESAMPLES = 2000
 LEVEL = 0.95
-VERSUS = ("kf-tuned", "clock", "glr", "alarm-burst", "hindsight")
+VERSUS = (
+    "kf-tuned", "kf-tuned-mixed", "clock", "clock-mixed", "glr", "glr-tuned",
+    "glr-tuned-mixed", "alarm-burst", "nis-rule", "nis-rule-tuned", "nis-rule-tuned-mixed",
+    "hindsight",
+)  # fmt: skip
 """The methods the shipped seed's policy is compared with in ``zoo_families.csv`` (those
-that ran): the tuned constant κ, the tuned clock, a change detector, the alarm burst and the
-per-trial best schedule (the end of the headroom)."""
+that ran): the tuned constant κ and the tuned clock, per family and on the training mixture,
+a change detector, the alarm burst, the NIS rule that mimics the policies, and the best κ
+schedule found per trial (the end of the headroom)."""
 
 
 @dataclass(frozen=True)
@@ -186,6 +191,7 @@ def families_summary(
     from qkf.core.manifest import read_manifest
     from qkf.transfer_alignment.families import (
         SEED_MARK,
+        reference_of,
         seed_statistics,
         versus_rows,
     )
@@ -212,7 +218,7 @@ def families_summary(
                 continue
             iqm, lo, hi = (float(str(stat[k])) for k in ("iqm", "iqm_lo", "iqm_hi"))
             side = ratio_side(lo, hi)  # of a score: above 1 is better
-            rows.append(row(entry.name, "iqm", "kf-tuned", iqm, lo, hi,
+            rows.append(row(entry.name, "iqm", reference_of(values), iqm, lo, hi,
                             ("inconclusive", "better", "worse")[side]))  # fmt: skip
             for b in others:
                 p = stat.get(f"p_improve_{b}")

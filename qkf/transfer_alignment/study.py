@@ -524,7 +524,8 @@ def _narrow(
             )
         chosen = list(dict.fromkeys(families))
         update["families"] = [f for f in chosen if f in study.families]
-        update["shift_families"] = [f for f in chosen if f in study.shift_families]
+        picked = [f for f in chosen if f in study.shift_families]
+        update["shift_families"] = list(study.shift_families) if shift else picked
     elif not shift:
         update["shift_families"] = []
     if study.kind == "families" and not (
