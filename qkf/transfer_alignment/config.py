@@ -95,6 +95,19 @@ MAX_RANDOM_JUMPS = 4
 """Upper bound on ``random_events.jump.count``."""
 
 
+def _check_separation(count: int, separation: float, t_s: Uniform, what: str) -> None:
+    """Refuse ``count`` times at least ``separation`` apart that do not fit strictly inside
+    ``t_s`` (the allowed region must have a positive volume, else the times are not uniform on
+    anything): ``(count − 1)`` separations, as long as there are two."""
+    span = t_s.high - t_s.low
+    need = (count - 1) * separation
+    if count > 1 and need >= span:
+        raise ValueError(
+            f"min_separation_s: {count} {what} (count) at least {separation:g} s apart need a "
+            f"t_s range longer than {need:g} s; t_s spans {span:g} s"
+        )
+
+
 class RandomManeuvers(StrictModel):
     """The calibration rotation sequence, drawn per trial: one rotation about each body axis,
     back to back from its start, in random order (``shuffle_axes``), each with its own rate and
@@ -135,22 +148,13 @@ class RandomJump(StrictModel):
 
     @model_validator(mode="after")
     def _fits(self) -> RandomJump:
-        # the allowed region must have a positive volume (else the times are not uniform on
-        # anything): (count − 1) separations strictly inside the range, as long as there are two
         if self.rotations_delay_s is not None and (
             not self.rotations_after or self.rotations_delay_s.low < 0.0
         ):
             raise ValueError(
                 "rotations_delay_s: needs rotations_after: true and a non-negative range"
             )
-        span = self.t_s.high - self.t_s.low
-        need = (self.count - 1) * self.min_separation_s
-        if self.count > 1 and need >= span:
-            raise ValueError(
-                f"min_separation_s: {self.count} jumps (count) at least "
-                f"{self.min_separation_s:g} s apart need a t_s range longer than {need:g} s; "
-                f"t_s spans {span:g} s"
-            )
+        _check_separation(self.count, self.min_separation_s, self.t_s, "jumps")
         return self
 
 
@@ -167,14 +171,7 @@ class RandomRotations(StrictModel):
 
     @model_validator(mode="after")
     def _fits(self) -> RandomRotations:
-        span = self.t_s.high - self.t_s.low
-        need = (self.count - 1) * self.min_separation_s
-        if self.count > 1 and need >= span:
-            raise ValueError(
-                f"min_separation_s: {self.count} sequences (count) at least "
-                f"{self.min_separation_s:g} s apart need a t_s range longer than {need:g} s; "
-                f"t_s spans {span:g} s"
-            )
+        _check_separation(self.count, self.min_separation_s, self.t_s, "sequences")
         return self
 
 

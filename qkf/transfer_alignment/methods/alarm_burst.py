@@ -17,6 +17,7 @@ scenario the oracle's window is empty and this is the tuned constant κ.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +39,39 @@ def nis_per_row(nis: np.ndarray, n_meas: int) -> np.ndarray:
     return np.where(n > 0, total / np.maximum(n, 1) / n_meas, 1.0)
 
 
+Decide = Callable[[np.ndarray, float], np.ndarray]
+"""A periodic rule's decision: the next period's κ (B,) from the period's mean NIS per row
+(B,) and its length in seconds."""
+
+
+def run_periodic_rule(
+    cfg: Config, data: ScenarioData, period_s: float, kappa0: float, decide: Decide
+) -> MethodOutput:
+    """The filter run in decision periods of ``period_s``: κ held over each period (``kappa0``
+    over the first), the next one decided from the period's mean NIS per row
+    (:func:`nis_per_row`). Shared by ``alarm-burst`` and ``nis-rule``."""
+    period = max(1, round(period_s / cfg.scenario.dt_s))
+    kf = new_filter(cfg, data)
+    cov = CovarianceRecorder(cfg, data.n_trials)
+    kappa = np.full(data.n_trials, kappa0)
+    est, held = [], []
+    epochs = EpochRecords(data.n_trials, data.n_epochs)
+    for k0 in range(0, data.n_epochs, period):
+        k1 = min(data.n_epochs, k0 + period)
+        rec = step_recording(kf, data, k0, k1, kappa, cov)
+        est.append(rec.est)
+        epochs.put(k0, rec)
+        held.append(kappa)
+        kappa = decide(nis_per_row(rec.nis, kf.params.n_meas), (k1 - k0) * cfg.scenario.dt_s)
+    out = MethodOutput(
+        est=np.concatenate(est, axis=1),
+        diverged=kf.diverged.copy(),
+        kappa=per_epoch(np.stack(held, axis=1), period, data.n_epochs),
+        cov=cov.cov,
+    )
+    return epochs.attach(out)
+
+
 @dataclass(frozen=True)
 class AlarmBurstSchedule:
     """The rule with the oracle's parameters fixed (what :class:`AlarmBurst` prepares)."""
@@ -46,29 +80,13 @@ class AlarmBurstSchedule:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         ab, orc = cfg.adaptive.alarm_burst, self.schedule
-        period = max(1, round(ab.period_s / cfg.scenario.dt_s))
-        kf = new_filter(cfg, data)
-        cov = CovarianceRecorder(cfg, data.n_trials)
         clock = change_clock(cfg, data.n_trials)  # the alarm settings observation v2 sees too
-        kappa = np.full(data.n_trials, orc.base)
-        est, held = [], []
-        epochs = EpochRecords(data.n_trials, data.n_epochs)
-        for k0 in range(0, data.n_epochs, period):
-            k1 = min(data.n_epochs, k0 + period)
-            rec = step_recording(kf, data, k0, k1, kappa, cov)
-            est.append(rec.est)
-            epochs.put(k0, rec)
-            held.append(kappa)
-            alarm = clock.alarms(nis_per_row(rec.nis, kf.params.n_meas))
-            age = clock.update(alarm, (k1 - k0) * cfg.scenario.dt_s)
-            kappa = np.where(age < orc.window_s - 1e-9, orc.after, orc.base)
-        out = MethodOutput(
-            est=np.concatenate(est, axis=1),
-            diverged=kf.diverged.copy(),
-            kappa=per_epoch(np.stack(held, axis=1), period, data.n_epochs),
-            cov=cov.cov,
-        )
-        epochs.attach(out)
+
+        def decide(nis: np.ndarray, period_s: float) -> np.ndarray:
+            age = clock.update(clock.alarms(nis), period_s)
+            return np.where(age < orc.window_s - 1e-9, orc.after, orc.base)
+
+        out = run_periodic_rule(cfg, data, ab.period_s, orc.base, decide)
         out.notes["alarm-burst"] = (
             f"κ = {orc.after:.3g} for {orc.window_s:g} s from the first NIS alarm of a change, "
             f"else {orc.base:.3g} (the oracle's values, tuned with the truth on tuning seeds)"

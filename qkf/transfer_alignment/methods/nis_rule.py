@@ -19,9 +19,8 @@ import numpy as np
 
 from qkf.transfer_alignment.alarms import ChangeClock
 from qkf.transfer_alignment.config import Config, NisRuleConfig
-from qkf.transfer_alignment.methods.alarm_burst import nis_per_row
-from qkf.transfer_alignment.methods.base import EpochRecords, MethodOutput, new_filter, per_epoch
-from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
+from qkf.transfer_alignment.methods.alarm_burst import run_periodic_rule
+from qkf.transfer_alignment.methods.base import MethodOutput
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
@@ -33,29 +32,13 @@ class NisRule:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         nr = cfg.adaptive.nis_rule
-        period = max(1, round(nr.period_s / cfg.scenario.dt_s))
-        kf = new_filter(cfg, data)
-        cov = CovarianceRecorder(cfg, data.n_trials)
         clock = ChangeClock(data.n_trials, quiet_s=0.0, nis_alarm=nr.nis_threshold)
-        kappa = np.full(data.n_trials, nr.kappa_base)
-        est, held = [], []
-        epochs = EpochRecords(data.n_trials, data.n_epochs)
-        for k0 in range(0, data.n_epochs, period):
-            k1 = min(data.n_epochs, k0 + period)
-            rec = step_recording(kf, data, k0, k1, kappa, cov)
-            est.append(rec.est)
-            epochs.put(k0, rec)
-            held.append(kappa)
-            alarm = clock.alarms(nis_per_row(rec.nis, kf.params.n_meas))
-            since = clock.update(alarm, (k1 - k0) * cfg.scenario.dt_s)
-            kappa = np.where(since < nr.hold_s - 1e-9, nr.kappa_burst, nr.kappa_base)
-        out = MethodOutput(
-            est=np.concatenate(est, axis=1),
-            diverged=kf.diverged.copy(),
-            kappa=per_epoch(np.stack(held, axis=1), period, data.n_epochs),
-            cov=cov.cov,
-        )
-        epochs.attach(out)
+
+        def decide(nis: np.ndarray, period_s: float) -> np.ndarray:
+            since = clock.update(clock.alarms(nis), period_s)
+            return np.where(since < nr.hold_s - 1e-9, nr.kappa_burst, nr.kappa_base)
+
+        out = run_periodic_rule(cfg, data, nr.period_s, nr.kappa_base, decide)
         out.notes["nis-rule"] = (
             f"κ = {nr.kappa_burst:.3g} for {nr.hold_s:g} s after any period with NIS per row > "
             f"{nr.nis_threshold:g}, else {nr.kappa_base:.3g}"
