@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from qkf.cli import app
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
+from qkf.transfer_alignment.benchmark import paired_verdict
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, recovery_times
 
 runner = CliRunner()
@@ -91,7 +92,14 @@ def test_significance_marks_match_paired_csv(run: Path) -> None:
         cells = [c.strip() for c in lines[method].split("|")[3:-2]]
         for cell, col in zip(cells, METRIC_COLUMNS, strict=True):
             row = next(r for r in paired if r["method"] == method and r["metric"] == col)
-            expect = "↓" if float(row["hi"]) < 1 else "↑" if float(row["lo"]) > 1 else ""
+            # a mark needs both the pooled and the median interval on one side of 1, and
+            # enough trials (paired.csv's verdict, docs/methods.md "Per-trial verdicts")
+            verdict = paired_verdict(
+                float(row["lo"]), float(row["hi"]), float(row["median_lo"]),
+                float(row["median_hi"]), row["verdict"] != "unjudged",
+            )  # fmt: skip
+            assert verdict == row["verdict"], (method, col)
+            expect = {"better": "↓", "worse": "↑"}.get(verdict, "")
             assert cell.endswith(expect) if expect else cell[-1].isdigit(), (method, col, cell)
     assert "Recovery after the calibration jump" in text
 
