@@ -23,6 +23,7 @@ import io
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,8 +38,9 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
-from qkf.transfer_alignment.benchmark import paired_verdict
-from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
+
+if TYPE_CHECKING:  # the families module loads the filter: imported where it is used
+    from qkf.transfer_alignment.families import VersusRow
 
 RESAMPLES = 2000
 LEVEL = 0.95
@@ -126,10 +128,15 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
         rows.append(row(p, "rms", "", point[p], float(lo), float(hi)))
         for b in bases:
             lo, hi = percentile_interval(reps[p] / reps[b], LEVEL)
-            rows += comparison_rows(
-                row, p, b, point[p] / point[b], float(lo), float(hi),
-                per_trial[p], per_trial[b], counts, judged,
+            from qkf.transfer_alignment.families import VersusRow
+
+            per = per_trial_comparison(per_trial[p], per_trial[b], counts, LEVEL)
+            compared = VersusRow(
+                case.scenario, p, b, point[p] / point[b], float(lo), float(hi),
+                float(per.median), float(per.median_lo), float(per.median_hi),
+                float(per.p_improve), float(per.worst_decile), judged,
             )  # fmt: skip
+            rows += comparison_rows(row, compared)
         if "kf" in per_trial and "oracle" in per_trial and point["kf"] > point["oracle"]:
             rep_share = (reps["kf"] - reps[p]) / (reps["kf"] - reps["oracle"])
             lo, hi = percentile_interval(rep_share, LEVEL)
@@ -152,30 +159,17 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
     return rows
 
 
-def comparison_rows(
-    row: Callable[..., JudgeRow],
-    policy: str,
-    base: str,
-    ratio: float,
-    lo: float,
-    hi: float,
-    values: np.ndarray,
-    base_values: np.ndarray,
-    counts: np.ndarray,
-    judged: bool,
-) -> list[JudgeRow]:
-    """The rows of one paired comparison: the pooled ``ratio`` (verdict from both intervals,
-    :func:`~qkf.transfer_alignment.benchmark.paired_verdict`), the median per-trial ratio with
-    its interval, the share of trials won and the worst decile (per-trial ``values``)."""
-    per = per_trial_comparison(values, base_values, counts, LEVEL)
-    m_lo, m_hi = float(per.median_lo), float(per.median_hi)
-    verdict = paired_verdict(lo, hi, m_lo, m_hi, judged)
+def comparison_rows(row: Callable[..., JudgeRow], v: VersusRow) -> list[JudgeRow]:
+    """The rows of one paired comparison ``v`` (policy ``v.method`` against ``v.other``): the
+    pooled ratio with its verdict (:attr:`~qkf.transfer_alignment.families.VersusRow.verdict`:
+    both intervals), the median per-trial ratio with its interval, the share of trials won and
+    the worst decile."""
     nan = float("nan")
     return [
-        row(policy, "ratio", base, ratio, lo, hi, verdict),
-        row(policy, "median_ratio", base, float(per.median), m_lo, m_hi),
-        row(policy, "trials_won", base, float(per.p_improve), nan, nan),
-        row(policy, "worst_decile", base, float(per.worst_decile), nan, nan),
+        row(v.method, "ratio", v.other, v.ratio, v.lo, v.hi, v.verdict),
+        row(v.method, "median_ratio", v.other, v.median, v.median_lo, v.median_hi),
+        row(v.method, "trials_won", v.other, v.p_improve, nan, nan),
+        row(v.method, "worst_decile", v.other, v.worst_decile, nan, nan),
     ]
 
 
@@ -227,15 +221,9 @@ def families_summary(
         if shipped is None:
             continue
         label = f"{mine}{shipped}"
-        counts = resample_counts(n, boot.resamples, seed)  # versus_rows' resamples
-        judged = n >= min_verdict_trials(boot.level)
-        j = METRIC_COLUMNS.index(STATE_SETTLED)
         for v in versus_rows(family, values, [label], boot.resamples, boot.level, seed):
             if v.other in VERSUS:
-                rows += comparison_rows(
-                    row, label, v.other, v.ratio, v.lo, v.hi,
-                    values[label][:, j], values[v.other][:, j], counts, judged,
-                )  # fmt: skip
+                rows += comparison_rows(row, v)
     return rows
 
 

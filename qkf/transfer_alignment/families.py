@@ -213,6 +213,7 @@ class VersusRow:
     median_lo: float = math.nan
     median_hi: float = math.nan
     p_improve: float = math.nan
+    worst_decile: float = math.nan
     judged: bool = True
 
     @property
@@ -253,7 +254,7 @@ def versus_rows(
             out.append(
                 VersusRow(family, m, other, ratio, float(lo), float(hi), float(per.median),
                           float(per.median_lo), float(per.median_hi), float(per.p_improve),
-                          judged)
+                          float(per.worst_decile), judged)
             )  # fmt: skip
     return out
 

@@ -32,7 +32,7 @@ import numpy as np
 from qkf.transfer_alignment.config import Config, Maneuver, Scenario
 from qkf.transfer_alignment.crlb import crlb
 from qkf.transfer_alignment.model import CALIB
-from qkf.transfer_alignment.scenario import ScenarioData, draw_trial, trial_streams
+from qkf.transfer_alignment.scenario import ScenarioData, draw_events, trial_streams
 
 
 @dataclass(frozen=True)
@@ -46,10 +46,6 @@ class SettledWindows:
     def mask(self, n_epochs: int) -> np.ndarray:
         """Settled epochs per trial (B, N) bool: a suffix of the run."""
         return np.arange(n_epochs)[None, :] >= self.first[:, None]
-
-    def rows(self, rows: np.ndarray | slice) -> SettledWindows:
-        """The windows of a subset of the trials."""
-        return SettledWindows(self.first[rows], self.weights[rows])
 
 
 def opening_end_s(maneuvers: list[Maneuver]) -> float:
@@ -66,11 +62,7 @@ def opening_end_s(maneuvers: list[Maneuver]) -> float:
 def trial_scenario(cfg: Config, seed: int, trial: int) -> Scenario:
     """The scenario trial ``trial`` of seed ``seed`` was simulated with (its drawn events;
     ``cfg.scenario`` itself when nothing is drawn)."""
-    sc = cfg.scenario
-    if sc.random_events is None:
-        return sc
-    drawn, _ = draw_trial(sc, trial_streams(seed, trial)["events"])
-    return drawn
+    return draw_events(cfg.scenario, trial_streams(seed, trial)["events"])
 
 
 def settled_windows(
