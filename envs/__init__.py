@@ -6,7 +6,9 @@ One package per environment, on the estimation problem it is built on, and what 
   ``qkf/TransferAlignmentTimed-v3``, the agent picks the transfer-alignment filter's
   process-noise factor κ every decision period; they differ only in the observation (the older
   ones stay as they were, for the policies trained on them; ``Timed-v3`` is v3 with the clock,
-  an ablation). Single environment, batched Gymnasium vector environment, Stable-Baselines3 adapter.
+  an ablation); ``qkf/TransferAlignment-v4`` adds the filter's own moves (``controls=``:
+  process noise per block, resets, the assumed ADS noise; residual corrections of a classical
+  rule with ``base=``) and slow evidence. Single environment, batched Gymnasium vector environment, Stable-Baselines3 adapter.
 * :mod:`envs.redundant_gyros`: ``qkf/RedundantGyroCalibration-v0``, the same question asked
   of the redundant-gyro calibration UKF (docs/redundant_gyros.md).
 * :mod:`envs.common`: the κ action map, observation bounds, rendering, scenario checks and
@@ -29,6 +31,7 @@ from envs.transfer_alignment import (
     ENV_ID_V2,
     ENV_ID_V3,
     ENV_ID_V3_TIMED,
+    ENV_ID_V4,
     OBSERVATIONS,
     REWARDS,
     BatchedEpisodes,
@@ -53,6 +56,7 @@ __all__ = [
     "ENV_ID_V2",
     "ENV_ID_V3",
     "ENV_ID_V3_TIMED",
+    "ENV_ID_V4",
     "GYRO_ENV_ID",
     "GYRO_REWARDS",
     "OBSERVATIONS",

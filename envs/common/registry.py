@@ -42,11 +42,15 @@ class Environment:
     vector_entry_point: str | None = None  # its batched gymnasium.vector.VectorEnv, if any
     sb3_vec_env: str | None = None  # its batched SB3 VecEnv adapter, if any
     description: str = ""
+    defaults: tuple[tuple[str, Any], ...] = ()  # keyword defaults of the id (v4: controls)
+    options: tuple[str, ...] = ()  # keywords a training config's env_kwargs may set
 
     @property
     def kwargs(self) -> dict[str, Any]:
-        """The constructor arguments the id fixes (the observation version, if any)."""
-        return {} if self.observation is None else {"observation": self.observation}
+        """The constructor arguments the id fixes (the observation version, if any) and its
+        keyword defaults."""
+        fixed = {} if self.observation is None else {"observation": self.observation}
+        return {**fixed, **dict(self.defaults)}
 
 
 ENVIRONMENTS: Registry[Environment] = Registry("environment", group="qkf.environments")

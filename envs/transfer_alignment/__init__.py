@@ -3,8 +3,11 @@
 process-noise factor κ of the transfer-alignment filter (:mod:`qkf.transfer_alignment`) every
 decision period.
 
-The ids differ only in the observation (:mod:`.observations`: ``v0`` … ``v3``, ``v3-time``);
-the older ones stay as they were, for the policies trained on them. The package holds every front
+The ids up to v3 differ only in the observation (:mod:`.observations`: ``v0`` … ``v3``,
+``v3-time``); the older ones stay as they were, for the policies trained on them. ``-v4`` adds
+the filter's own moves as actions (``controls=``, :mod:`.controls`: process noise per block,
+calibration resets, the assumed ADS noise, residual corrections of a classical rule) and slow
+evidence to the observation. The package holds every front
 end of the task over one set of batched episodes (:mod:`.episodes`): the single environment
 (:mod:`.env`), the batched Gymnasium vector environment (:mod:`.vector`, what ``gym.make_vec``
 returns) and its Stable-Baselines3 adapter (:mod:`.sb3`, imported only when used: it loads
@@ -33,12 +36,14 @@ ENV_ID_V1 = "qkf/TransferAlignment-v1"
 ENV_ID_V2 = "qkf/TransferAlignment-v2"
 ENV_ID_V3 = "qkf/TransferAlignment-v3"
 ENV_ID_V3_TIMED = "qkf/TransferAlignmentTimed-v3"
+ENV_ID_V4 = "qkf/TransferAlignment-v4"
 ENV_OBSERVATIONS = {
     ENV_ID: "v0",
     ENV_ID_V1: "v1",
     ENV_ID_V2: "v2",
     ENV_ID_V3: "v3",
     ENV_ID_V3_TIMED: "v3-time",
+    ENV_ID_V4: "v4",
 }
 """The transfer-alignment environment ids and the observation each one uses."""
 
@@ -56,7 +61,11 @@ _DESCRIPTIONS = {
     "v3": "transfer alignment, evidence without the clock: covariance levels, NIS per block, "
     "CUSUM, alarms, rate excitation (current)",
     "v3-time": "transfer alignment, v3 and the elapsed fraction (the ablation of the clock)",
+    "v4": "transfer alignment with the filter's own moves (controls=: kappa, blocks, reset, "
+    "r_scale, joined with +; base= for residual controls) and slow evidence (current)",
 }
+V4_OPTIONS = ("controls", "base")
+"""The keywords of v4 a training config's ``env_kwargs`` may set."""
 
 for _id, _obs in ENV_OBSERVATIONS.items():
     register_environment(
@@ -71,6 +80,8 @@ for _id, _obs in ENV_OBSERVATIONS.items():
             vector_entry_point="envs.transfer_alignment.vector:BatchedTransferAlignmentEnv",
             sb3_vec_env="envs.transfer_alignment.sb3:BatchedTransferAlignmentSB3Env",
             description=_DESCRIPTIONS[_obs],
+            defaults=(("controls", "kappa"),) if _obs == "v4" else (),
+            options=V4_OPTIONS if _obs == "v4" else (),
         )
     )
 
@@ -81,6 +92,7 @@ __all__ = [
     "ENV_ID_V2",
     "ENV_ID_V3",
     "ENV_ID_V3_TIMED",
+    "ENV_ID_V4",
     "ENV_OBSERVATIONS",
     "OBSERVATIONS",
     "REWARDS",

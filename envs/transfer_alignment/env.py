@@ -98,16 +98,20 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         observation: str = "v0",
         render_mode: str | None = None,
         data: str | Path | Sequence[str | Path] | None = None,
+        controls: str | None = None,
+        base: str | None = None,
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
         self._driver = EpisodeDriver(
-            1, scenario, action_type, reward, overrides, period_s, observation, data
-        )
+            1, scenario, action_type, reward, overrides, period_s, observation, data,
+            controls, base,
+        )  # fmt: skip
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
-        self.action_space = self.actions.space
+        self.controls = self._driver.controls
+        self.action_space = self._driver.action_space
         self.observation_space = self._driver.observation_space
         self._started = False
         self._trace = calibration_trace(self._driver, f"TransferAlignment ({observation})")
@@ -134,8 +138,12 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        kappa, position = self.actions(action)
-        out = self._driver.core.step(np.array([kappa]), np.array([position]))
+        if self.controls is not None:  # v4: the moves of the controls
+            out = self._driver.step(np.asarray(action)[None])
+            kappa = float(out.kappa[0])
+        else:
+            kappa, position = self.actions(action)
+            out = self._driver.core.step(np.array([kappa]), np.array([position]))
         info = {
             "kappa": kappa,
             "diverged": bool(out.terminated[0]),
@@ -143,6 +151,7 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
             "crlb": out.crlb[0],
             "t_s": float(out.t_s[0]),
             **self._data_info(),
+            **_moves_info(out, 0),
         }
         if self.render_mode is not None:  # record only what render() will draw
             self._trace.append(info["t_s"], kappa, calibration_curves(self._driver, out)[0])
@@ -159,6 +168,20 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         (κ chosen per step; the calibration σ of the filter, the true error and the CRLB).
         ``None`` without a render mode."""
         return self._trace.frame() if self.render_mode is not None else None
+
+
+def _moves_info(out: StepOutput, row: int) -> dict[str, Any]:
+    """v4's ``info`` entries of episode ``row``: the moves of the step (none without
+    controls)."""
+    if out.moves is None:
+        return {}
+    m = out.moves
+    return {
+        "q_att": float(m.q_att[row]),
+        "q_bias": float(m.q_bias[row]),
+        "r_scale": float(m.r_scale[row]),
+        "reset": float(m.reset[row]),
+    }
 
 
 CALIBRATION_CURVES = ("filter σ", "true error", "CRLB")

@@ -23,6 +23,7 @@ from gymnasium.utils import seeding
 
 from envs.common.actions import ActionMap
 from envs.common.bounds import DIVERGENCE_REWARD, observation_box
+from envs.transfer_alignment.controls import ControlMap
 from envs.transfer_alignment.observations import OBSERVATIONS, PeriodView
 from envs.transfer_alignment.rewards import REWARDS, PeriodOutcome
 from qkf.transfer_alignment.config import Config, load_scenario
@@ -31,6 +32,7 @@ from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods.base import decision_steps
 from qkf.transfer_alignment.metrics import state_errors, window_masks
+from qkf.transfer_alignment.moves import Moves, apply_moves
 from qkf.transfer_alignment.params import FilterParams, n_epochs
 from qkf.transfer_alignment.recorded.grid import RecordedSet, load_recorded
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
@@ -52,6 +54,8 @@ class StepOutput:
     t_s: np.ndarray  # (N,)
     est: np.ndarray  # (N, period, 16) the filter's estimates over the period, SI
     valid: np.ndarray  # (N, period) bool: epochs inside the episode
+    nis: np.ndarray  # (N, period) the filter's NIS per epoch (NaN where none)
+    moves: Moves | None = None  # the moves of the period (v4's controls), if any
 
 
 class BatchedEpisodes:
@@ -217,8 +221,11 @@ class BatchedEpisodes:
             return arr[:, where]
         return np.take_along_axis(arr, where.reshape(where.shape + (1,) * (arr.ndim - 2)), axis=1)
 
-    def step(self, kappa: np.ndarray, kappa_pos: np.ndarray) -> StepOutput:
-        """Run one decision period in every episode with process-noise factors ``kappa`` (N,)."""
+    def step(
+        self, kappa: np.ndarray, kappa_pos: np.ndarray, moves: Moves | None = None
+    ) -> StepOutput:
+        """Run one decision period in every episode with process-noise factors ``kappa`` (N,);
+        with ``moves`` (v4's controls) those moves instead, ``kappa`` their κ."""
         k0 = self.k.copy()
         where = self._period_index(k0)
         # Episodes are synchronous in length; a period that would run past the end is cut by
@@ -233,8 +240,12 @@ class BatchedEpisodes:
             self._window(a, where) for a in (self.gyro, self.ads_q, self.ads_rate)
         )
         meas = self._window(self.has_meas, where) & valid
+        if moves is not None:  # the period's process noise, assumed ADS σ and resets
+            kappa = apply_moves(self.kf, moves)
         if self.nominal is not None:
             self.nominal.copy_state_from(self.kf)
+            self.nominal.q_scale[:] = 1.0  # the shadow stays the nominal filter
+            self.nominal.sigma_a[:] = self.params.sigma_a
         rec = self.kf.step(gyro, ads_q, ads_rate, meas, kappa, record_cov=self.reward.needs_cov)
         self.k = np.minimum(k0 + self.period, self.n_epochs)
         self.kappa_pos = kappa_pos
@@ -304,6 +315,7 @@ class BatchedEpisodes:
             p0_sigma=self.params.p0_sigma,
             n_meas=self.params.n_meas,
             dt=self.cfg.scenario.dt_s,
+            moves=moves,
         )
         return StepOutput(
             obs=self.observation(view),
@@ -316,6 +328,8 @@ class BatchedEpisodes:
             t_s=self.t[at],
             est=rec.est,
             valid=valid,
+            nis=rec.nis,
+            moves=moves,
         )
 
 
@@ -339,6 +353,8 @@ class EpisodeDriver:
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
         data: str | Path | Sequence[str | Path] | None = None,
+        controls: str | None = None,
+        base: str | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("num_envs must be at least 1")
@@ -356,9 +372,21 @@ class EpisodeDriver:
             recorded = load_recorded(self.cfg, paths)
             self.cfg = recorded.cfg
         self.actions = ActionMap(np.asarray(self.cfg.adaptive.actions.values()), action_type)
+        if base is not None and controls is None:
+            raise ValueError("base= (a residual) needs controls=")
+        # v4: the moves the agent makes (envs.transfer_alignment.controls); None: κ only
+        self.controls = (
+            None
+            if controls is None
+            else ControlMap(self.cfg, controls, action_type, base, n, period_s)
+        )
+        self.action_space = self.actions.space if self.controls is None else self.controls.space
         self.observation_space: spaces.Box = observation_box(OBSERVATIONS[observation].size)
         self.core = BatchedEpisodes(self.cfg, n, reward, period_s, observation, recorded)
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
+        # the residual's base decision for each episode's next period
+        base_rule = None if self.controls is None else self.controls.base
+        self.base_moves = None if base_rule is None else base_rule.start()
 
     @property
     def episode_steps(self) -> int:
@@ -374,12 +402,35 @@ class EpisodeDriver:
         ``rows``); their first observations (len(rows), size)."""
         rows = np.asarray(rows, dtype=np.int64)
         seeds = [int(self.rngs[i].integers(2**63 - 1)) for i in rows]
+        self.restart_base(rows)
         return self.core.reset_many(rows, seeds)
 
+    def restart_base(self, rows: np.ndarray) -> None:
+        """The residual's base rule back to its start for episodes ``rows`` (no-op without)."""
+        if self.controls is None or self.controls.base is None or self.base_moves is None:
+            return
+        self.controls.base.reset(rows)
+        start = self.controls.base.start()
+        for mine, first in zip(self.base_moves.fields(), start.fields(), strict=True):
+            mine[rows] = first[rows]
+
     def step(self, actions: Any) -> StepOutput:
-        """Map one action per episode to κ and run one decision period in all of them."""
+        """Map one action per episode to κ (v4: to moves) and run one decision period in all
+        of them."""
+        if self.controls is not None:
+            return self.step_moves(self.controls.moves(actions, self.core.n, self.base_moves))
         mapped = [self.actions(a) for a in actions]
         return self.core.step(np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped]))
+
+    def step_moves(self, moves: Moves) -> StepOutput:
+        """Run one decision period with ``moves`` (N episodes), then let the residual's base
+        rule decide the next period from it."""
+        assert self.controls is not None
+        out = self.core.step(moves.kappa, self.controls.kappa_position(moves.kappa), moves)
+        base = self.controls.base
+        if base is not None:
+            self.base_moves = base(out.nis, out.valid, out.t_s)
+        return out
 
 
 def _read_only(arr: np.ndarray) -> np.ndarray:

@@ -22,6 +22,10 @@ agent sees).
   elapsed fraction of the episode is gone (a policy that reads it can learn a schedule, not a
   reaction), the calibration covariance level is split into scale factor and misalignment, and
   the windowed NIS is given per block (attitude, rate) besides the whole.
+* ``v4`` (``qkf/TransferAlignment-v4``, 24 entries): v3, slow evidence (NIS means over 300
+  and 1000 s per block, a slow CUSUM) and the moves in use (process-noise factors of attitude
+  and bias, the assumed ADS σ factor, the time since the last reset): what a policy needs to
+  see a slow drift and to act with the moves of :mod:`envs.transfer_alignment.controls`.
 * ``v3-time`` (``qkf/TransferAlignmentTimed-v3``, 16 entries): v3 and the elapsed fraction,
   the ablation that measures what the clock is worth.
 
@@ -60,6 +64,7 @@ from qkf.core.registry import Registry
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import FilterRecord
+from qkf.transfer_alignment.moves import Moves
 from qkf.transfer_alignment.states import GROUPS
 
 # The alarm threshold (v1, v2: a period's mean NIS per row above it is an alarm) and the calm
@@ -98,6 +103,7 @@ class PeriodView:
     p0_sigma: np.ndarray  # (15,) prior sigmas
     n_meas: int  # measurement rows per epoch (6 with rate matching, else 3)
     dt: float  # s
+    moves: Moves | None = None  # v4: the moves in effect over the period (None: κ only)
 
     @cached_property
     def summary(self) -> Summary:
@@ -379,6 +385,84 @@ class ObservationV3Timed(ObservationV3):
         return np.column_stack([super()._values(view), view.elapsed])
 
 
+SLOW_WINDOWS_S = (300.0, 1000.0)
+"""v4: time constants of the slow NIS means, s (exponential windows: a mean over the last τ
+with weights ``e^{−age/τ}``)."""
+SLOW_CUSUM_DRIFT = 0.1
+"""v4: drift of the slow CUSUM ``S ← max(0, S + x − 1 − drift)``: it rises under a sustained
+NIS excess of more than 10 %, which the fast CUSUM (drift 1) forgets."""
+
+
+class ObservationV4(ObservationV3):
+    """The 24-entry observation of ``qkf/TransferAlignment-v4``: v3's fifteen, then slow
+    evidence and the moves in effect (no clock).
+
+    ====  ======================================================================  ============
+    Obs   Meaning                                                                 Typical
+    ====  ======================================================================  ============
+    0–14  v3 (entry 13: position of the calibration κ on the action set's range)
+    15    ``log10`` of the attitude NIS / 3, exponential mean over 300 s            ≈ 0
+    16    ``log10`` of the rate NIS / 3, exponential mean over 300 s                ≈ 0
+    17    ``log10`` of the attitude NIS / 3, exponential mean over 1000 s           ≈ 0
+    18    ``log10`` of the rate NIS / 3, exponential mean over 1000 s               ≈ 0
+    19    ``log10(1 + S)``, S the slow CUSUM (drift 0.1) of the NIS per row        0; rises slowly
+    20    ``log10 q_att``, the attitude process-noise factor in use                −1 … 1
+    21    ``log10 q_bias``, the bias process-noise factor in use                   −1 … 1
+    22    ``log2 r_scale``, the factor on the assumed ADS σ in use                 −1 … 2
+    23    ``log10(1 + t/10 s)``, t the time since the last reset (cap 10⁴ s)       0 … 3
+    ====  ======================================================================  ============
+
+    A slow calibration drift raises the NIS by a few per cent for hundreds of seconds: the
+    300–1000 s means and the slow CUSUM (15–19) see it where v3's 60-s window cannot. A
+    mis-stated ADS noise shows as an attitude NIS mean away from 1 over 1000 s (17).
+    """
+
+    size = 24
+
+    def __init__(self, cfg: Config, n: int, period_s: float) -> None:
+        super().__init__(cfg, n, period_s)
+        self.slow = np.ones((n, 4))  # EMAs of x_att, x_rate over 300 s, then over 1000 s
+        self.slow_cusum = np.zeros(n)
+        self.since_reset = np.full(n, ONSET_CAP_S)
+
+    def reset(self, rows: np.ndarray, kappa_pos: float) -> np.ndarray:
+        v3 = super().reset(rows, kappa_pos)
+        self.slow[rows] = 1.0
+        self.slow_cusum[rows] = 0.0
+        self.since_reset[rows] = ONSET_CAP_S
+        extra = np.zeros((rows.size, 9))
+        extra[:, 8] = self._shown(ONSET_CAP_S)
+        return np.column_stack([v3, extra]).astype(np.float32)
+
+    def _values(self, view: PeriodView) -> np.ndarray:
+        v3 = super()._values(view)
+        sm = view.summary
+        period_s = view.steps * view.dt
+        # the period's mean NIS per row of attitude and rate (1 where the period had none)
+        x = np.where(sm.nis_count[:, :2] > 0, sm.nis_mean[:, :2] / 3.0, 1.0)
+        x = np.where(np.isfinite(x), x, OBS_LIMIT)
+        taus = np.repeat(np.asarray(SLOW_WINDOWS_S), 2)
+        alpha = 1.0 - np.exp(-period_s[:, None] / taus[None, :])  # weight of this period
+        self.slow += alpha * (np.tile(x, 2) - self.slow)  # m ← m + α (x − m)
+        rows = np.where(sm.nis_count[:, 2] > 0, sm.nis_mean[:, 2] / view.n_meas, 1.0)
+        rows = np.where(np.isfinite(rows), rows, OBS_LIMIT)
+        self.slow_cusum = np.maximum(0.0, self.slow_cusum + rows - 1.0 - SLOW_CUSUM_DRIFT)
+        moves = view.moves if view.moves is not None else Moves.nominal(v3.shape[0])
+        reset = moves.reset > 0.0  # a reset at this period's start
+        self.since_reset = np.where(reset, period_s, self.since_reset + period_s)
+        extra = np.column_stack(
+            [
+                np.log10(np.maximum(self.slow, LOG_FLOOR)),
+                np.log10(1.0 + self.slow_cusum),
+                np.log10(moves.q_att),
+                np.log10(moves.q_bias),
+                np.log2(moves.r_scale),
+                self._shown(self.since_reset),
+            ]
+        )
+        return np.column_stack([v3, extra])
+
+
 OBSERVATIONS.register(
     "v0",
     Observation(
@@ -413,6 +497,15 @@ OBSERVATIONS.register(
         ObservationV3.size,
         "v3: P levels of the four blocks, period and windowed NIS per block, CUSUM, time since "
         "alarm, |ω̂|, time since the rate changed, κ, age of the change (no clock)",
+    ),
+)
+OBSERVATIONS.register(
+    "v4",
+    Observation(
+        ObservationV4,
+        ObservationV4.size,
+        "v4: v3, slow NIS means (300 s, 1000 s) per block, a slow CUSUM, the moves in use and "
+        "the time since the last reset (no clock)",
     ),
 )
 OBSERVATIONS.register(

@@ -36,14 +36,17 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
         overrides: list[str] | None = None,
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
+        controls: str | None = None,
+        base: str | None = None,
     ) -> None:
         self._driver = EpisodeDriver(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation
-        )
+            num_envs, scenario, action_type, reward, overrides, period_s, observation,
+            controls=controls, base=base,
+        )  # fmt: skip
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
         self.render_mode = None
-        super().__init__(num_envs, self._driver.observation_space, self.actions.space)
+        super().__init__(num_envs, self._driver.observation_space, self._driver.action_space)
         self._actions: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
@@ -60,7 +63,8 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
         if self._actions is None:
             raise RuntimeError("step_async must come before step_wait")
         acts = self._actions.reshape(self.num_envs, -1)
-        out = self._driver.step(acts if self.actions.action_type == "continuous" else acts[:, 0])
+        vector = self.actions.action_type == "continuous" or self._driver.controls is not None
+        out = self._driver.step(acts if vector else acts[:, 0])
         obs = out.obs.copy()
         dones = out.terminated | out.truncated
         infos: list[dict[str, Any]] = []

@@ -46,6 +46,8 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
         render_mode: str | None = None,
+        controls: str | None = None,
+        base: str | None = None,
         **kwargs: Any,
     ) -> None:
         if kwargs.get("data") is not None:  # not silently a simulation instead
@@ -57,11 +59,12 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         self.render_mode = render_mode
         self.num_envs = num_envs
         self._driver = EpisodeDriver(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation
-        )
+            num_envs, scenario, action_type, reward, overrides, period_s, observation,
+            controls=controls, base=base,
+        )  # fmt: skip
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
-        self.single_action_space = self._driver.actions.space
+        self.single_action_space = self._driver.action_space
         self.single_observation_space = self._driver.observation_space
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)

@@ -130,6 +130,10 @@ class TransferAlignmentKF:
         self.sigma_a = np.full(n_trials, params.sigma_a)
         """Attitude measurement sigma (rad) the filter assumes, per trial; adaptive-R methods
         change it between calls."""
+        self.q_scale = np.ones((n_trials, 2))
+        """Factors on the attitude (σ_v²) and bias (σ_u²) process noise, per trial (B, 2); the
+        calibration block's are ``kappa`` of :meth:`step`. The ``blocks`` moves of the
+        environments change them between calls (docs/environment.md, "Controls")."""
         self._constants: tuple[FilterParams, _ta_kernel.ConstantsTuple] | None = None  # see step
 
     def initialize(self, ads_q0: np.ndarray) -> None:
@@ -143,6 +147,7 @@ class TransferAlignmentKF:
         self._pt[:] = np.eye(15)
         self.diverged[:] = False
         self.sigma_a[:] = self.params.sigma_a
+        self.q_scale[:] = 1.0
 
     @property
     def P(self) -> np.ndarray:
@@ -160,13 +165,14 @@ class TransferAlignmentKF:
 
     def load_trial(self, i: int | slice, other: TransferAlignmentKF, j: int | slice = 0) -> None:
         """Overwrite trial(s) ``i`` with trial(s) ``j`` of ``other`` (estimates, covariance,
-        flags, assumed attitude noise)."""
+        flags, assumed attitude noise, process-noise factors)."""
         self.q_hat[i] = other.q_hat[j]
         self.b_hat[i] = other.b_hat[j]
         self.p_hat[i] = other.p_hat[j]
         self._pt[i] = other._pt[j]
         self.diverged[i] = other.diverged[j]
         self.sigma_a[i] = other.sigma_a[j]
+        self.q_scale[i] = other.q_scale[j]
 
     def copy_state_from(self, other: TransferAlignmentKF) -> None:
         """Overwrite this filter's estimates, covariance and divergence flags with ``other``'s."""
@@ -237,7 +243,10 @@ class TransferAlignmentKF:
             np.empty((b, n, 3)),  # rate
         )
         state = self._kernel_state()
-        inputs = (gyro, ads_q, ads_rate, has_meas, kap, np.ascontiguousarray(self.sigma_a, float))
+        inputs = (
+            gyro, ads_q, ads_rate, has_meas, kap,
+            np.ascontiguousarray(self.sigma_a, float), np.ascontiguousarray(self.q_scale, float),
+        )  # fmt: skip
         # A single environment's step calls this twice per decision period of ten epochs, so
         # the wrapper is kept to a few microseconds: the constants are built once per
         # parameter set, and the serial kernel takes plain tuples (docs/performance.md).

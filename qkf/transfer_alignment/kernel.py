@@ -90,6 +90,7 @@ class Inputs(NamedTuple):
     has_meas: np.ndarray  # (B, n) bool
     kappa: np.ndarray  # (B, n, 9): q_p of each calibration component = κ · q_p0
     sigma_a: np.ndarray  # (B,) attitude measurement sigma assumed per trial, rad
+    q_scale: np.ndarray  # (B, 2): factors on σ_v² (attitude) and σ_u² (bias) in Q, per trial
 
 
 class Constants(NamedTuple):
@@ -121,7 +122,9 @@ class Records(NamedTuple):
 
 StateTuple = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """The fields of :class:`FilterState` as a plain tuple (:func:`run_block_serial`)."""
-InputsTuple = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+InputsTuple = tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]
 """The fields of :class:`Inputs` as a plain tuple."""
 ConstantsTuple = tuple[
     float, float, float, float, float, bool, bool, np.ndarray, np.ndarray, np.ndarray
@@ -567,12 +570,17 @@ def _qd_quadrature(
     c: Constants,
     max_nodes: int,
     s: _Scratch,
+    sv2: float,
+    su2: float,
 ) -> None:
     """Attitude integrals of Q_d by Gauss–Legendre quadrature over s ∈ [0, Δt], in SI::
 
         q_tt  = ∫ R(s) M1 R(s)ᵀ + Γ(s) M2 Γ(s)ᵀ ds     into s.q_tt
         ∫Γ    = ∫ Γ(s) ds                               into s.g_int
         M1 = σ_v² A Aᵀ,   M2 = A (σ_u² I + Ω diag(q_p) Ωᵀ) Aᵀ
+
+    ``sv2``, ``su2``: σ_v², σ_u² of the process noise (the constants' times the trial's
+    ``q_scale``).
 
     with R(s) = Exp(−ω̂ s), Γ(s) = s J(−ω̂ s); ``wx``, ``wx2`` = [−ω̂×], [−ω̂×]², ``rate`` = |ω̂|.
     ``s.q_c`` holds q_p = κ q_p0. The node count comes from :func:`_nodes_needed`. Clobbers
@@ -584,14 +592,14 @@ def _qd_quadrature(
     # Ω diag(q) Ωᵀ is diagonal because each column of Ω has a single non-zero:
     # dq_r = σ_u² + Σ_{l: row l = r} q_l ω_{col l}²
     for r_ in range(3):
-        dq[r_] = c.sigma_u**2
+        dq[r_] = su2
     for l in range(9):
         dq[OM_ROW[l]] += q_c[l] * w[OM_COL[l]] ** 2
     for i in range(3):
         for j in range(3):
             aat = a[i, 0] * a[j, 0] + a[i, 1] * a[j, 1] + a[i, 2] * a[j, 2]
             # M1 = σ_v² A Aᵀ,  M2 = A diag(dq) Aᵀ
-            m1[i, j] = c.sigma_v**2 * aat
+            m1[i, j] = sv2 * aat
             m2[i, j] = (
                 a[i, 0] * dq[0] * a[j, 0] + a[i, 1] * dq[1] * a[j, 1] + (a[i, 2] * dq[2] * a[j, 2])
             )
@@ -631,6 +639,7 @@ def _propagate_covariance(
     sc: _Scales,
     s: _Scratch,
     correlated: bool,
+    su2: float,
 ) -> None:
     """P̃ ← Φ̃ P̃ Φ̃ᵀ + Q̃d, then (``correlated``) the correlated-noise terms.
 
@@ -647,7 +656,6 @@ def _propagate_covariance(
     phi_top, t_mat, tmp, aom, q_c = s.phi_top, s.t_mat, s.tmp, s.aom, s.q_c
     q_tt, g_int = s.q_tt, s.g_int
     inv_dd = sc.inv_dd
-    sigma_u = c.sigma_u
     # T = Φ̃_top P̃ (3×15)
     for i in range(3):
         for j in range(15):
@@ -679,7 +687,7 @@ def _propagate_covariance(
             v = 0.0
             for k in range(3):
                 v += g_int[i, k] * a[k, j]
-            qtb = -(sigma_u**2) * v * inv_dd[i, 3 + j]
+            qtb = -su2 * v * inv_dd[i, 3 + j]
             p[i, 3 + j] += qtb
             p[3 + j, i] += qtb
         for l in range(9):
@@ -691,7 +699,7 @@ def _propagate_covariance(
             p[6 + l, i] += qtp
     # + the random-walk diagonals: Q̃_bb = σ_u² Δt / d_b²,  Q̃_pp = q_p Δt / d_p²
     for i in range(3):
-        p[3 + i, 3 + i] += sigma_u**2 * c.dt * sc.inv_d2[3 + i]
+        p[3 + i, 3 + i] += su2 * c.dt * sc.inv_d2[3 + i]
     for i in range(9):
         p[6 + i, 6 + i] += q_c[i] * c.dt * sc.inv_d2[6 + i]
     if correlated:
@@ -731,6 +739,9 @@ def _epoch_loop(
     gyro, ads_q, ads_rate = inputs.gyro[bi], inputs.ads_q[bi], inputs.ads_rate[bi]
     has_meas, kappa = inputs.has_meas[bi], inputs.kappa[bi]
     e_a = inputs.sigma_a[bi]
+    # σ_v², σ_u² of the process noise: a factor of 1 leaves them bit for bit
+    sv2 = c.sigma_v**2 * inputs.q_scale[bi, 0]
+    su2 = c.sigma_u**2 * inputs.q_scale[bi, 1]
     a, w, x = s.a, s.w, s.x
     for k in range(gyro.shape[0]):
         if state.diverged[bi]:
@@ -785,8 +796,8 @@ def _epoch_loop(
         if updated_rate:
             _noise_correlation(s.gg, a, sc.corr_scale, s.c_tr)
         phi_top_rows(s.rr, s.gg, a, s.aom, sc.ratio, s.phi_top)
-        _qd_quadrature(s.wx, s.wx2, rate, a, w, c, sc.max_nodes, s)
-        _propagate_covariance(p, q_hat, a, c, sc, s, updated_rate)
+        _qd_quadrature(s.wx, s.wx2, rate, a, w, c, sc.max_nodes, s, sv2, su2)
+        _propagate_covariance(p, q_hat, a, c, sc, s, updated_rate, su2)
     for i in range(15):
         for j in range(15):
             pt[i, j] = p[i, j]

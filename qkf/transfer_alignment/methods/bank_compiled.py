@@ -971,6 +971,7 @@ def run_bank(
         has_meas=np.empty((rows, 1), dtype=bool),
         kappa=np.empty((rows, 1, 9)),
         sigma_a=np.ascontiguousarray(bank.sigma_a, dtype=float),
+        q_scale=np.ones((rows, 2)),
     )
     run_bank_trials(
         _ta_kernel.FilterState(*bank._kernel_state()),

@@ -53,7 +53,6 @@ from __future__ import annotations
 import numpy as np
 
 from qkf.transfer_alignment.config import Config, GlrConfig
-from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     EpochRecords,
     MethodOutput,
@@ -61,7 +60,7 @@ from qkf.transfer_alignment.methods.base import (
     uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
-from qkf.transfer_alignment.model import CALIB
+from qkf.transfer_alignment.moves import reopen_calibration
 from qkf.transfer_alignment.scenario import ScenarioData
 
 BLOCK = 100
@@ -81,22 +80,35 @@ def cusum_step(g_prev: np.ndarray, ell: np.ndarray) -> np.ndarray:
     return np.maximum(0.0, g_prev + ell)
 
 
-def reopen_calibration(kf: TransferAlignmentKF, rows: np.ndarray, sigma: float) -> None:
-    """Add ``σ²`` (SI: rad² for a misalignment, 1 for a scale factor) to the nine calibration
-    variances of the trials where ``rows`` (B,) is true; every other entry, and every other
-    trial's covariance, is left bit for bit as it was."""
-    if not np.any(rows):
-        return
-    # kf.P's setter rescales every trial (a round trip that changes the last bit of about one
-    # entry in seven), so the new covariance is built in a copy and loaded into the chosen
-    # trials only
-    opened = kf.copy()
-    p = opened.P
-    idx = np.arange(CALIB.start, CALIB.stop)
-    p[:, idx, idx] += sigma**2  # P_ii ← P_ii + σ_r²
-    opened.P = p
-    for i in np.flatnonzero(rows).tolist():
-        kf.load_trial(i, opened, i)
+class GlrPeriodDecision:
+    """The GLR rule decided once per period of N runs, for the environments' residual controls
+    (``base="glr"``, docs/environment.md, "Controls"): the CUSUM runs through the period's
+    epochs as in :func:`glr_filter`, and an alarm that passes the quiet time re-opens the
+    calibration block when the *next* period starts (up to one period later than the method,
+    which re-opens at the epoch after the alarm). ``__call__(nis (N, P), t_end (N,))`` returns
+    which runs re-open; ``reset(rows)`` starts runs anew."""
+
+    def __init__(self, settings: GlrConfig, n: int, n_meas: int) -> None:
+        self.settings = settings
+        self.n_meas = n_meas
+        self.g = np.zeros(n)
+        self.last_reopen = np.full(n, -np.inf)
+
+    def reset(self, rows: np.ndarray) -> None:
+        self.g[rows] = 0.0
+        self.last_reopen[rows] = -np.inf
+
+    def __call__(self, nis: np.ndarray, t_end: np.ndarray) -> np.ndarray:
+        prm = self.settings
+        ell = log_likelihood_ratio(nis, self.n_meas, prm.inflation)  # (N, P), 0 where no NIS
+        reopen = np.zeros(self.g.size, dtype=bool)
+        for k in range(ell.shape[1]):
+            self.g = cusum_step(self.g, ell[:, k])
+            alarm = self.g > prm.threshold
+            self.g = np.where(alarm, 0.0, self.g)  # the detector restarts after every alarm
+            reopen |= alarm & (t_end - self.last_reopen >= prm.quiet_s - 1e-9) & ~reopen
+        self.last_reopen = np.where(reopen, t_end, self.last_reopen)
+        return reopen
 
 
 def glr_filter(cfg: Config, data: ScenarioData, prm: GlrConfig, block: int = BLOCK) -> MethodOutput:

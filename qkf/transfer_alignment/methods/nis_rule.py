@@ -24,6 +24,25 @@ from qkf.transfer_alignment.methods.base import MethodOutput
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
+class NisRuleDecision:
+    """The rule's decision for N runs, one period at a time: ``reset(rows)`` starts runs anew,
+    ``__call__(x, period_s)`` returns the next period's κ (N,) from the period's mean NIS per
+    row ``x`` (N,). What the method runs, and the ``base="nis-rule"`` of the environments'
+    residual controls (docs/environment.md, "Controls")."""
+
+    def __init__(self, settings: NisRuleConfig, n: int) -> None:
+        self.settings = settings
+        self.clock = ChangeClock(n, quiet_s=0.0, nis_alarm=settings.nis_threshold)
+
+    def reset(self, rows: np.ndarray) -> None:
+        self.clock.reset(rows)
+
+    def __call__(self, nis: np.ndarray, period_s: np.ndarray | float) -> np.ndarray:
+        nr = self.settings
+        since = self.clock.update(self.clock.alarms(nis), period_s)
+        return np.where(since < nr.hold_s - 1e-9, nr.kappa_burst, nr.kappa_base)
+
+
 class NisRule:
     """The ``nis-rule`` method (module docstring)."""
 
@@ -32,12 +51,7 @@ class NisRule:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         nr = cfg.adaptive.nis_rule
-        clock = ChangeClock(data.n_trials, quiet_s=0.0, nis_alarm=nr.nis_threshold)
-
-        def decide(nis: np.ndarray, period_s: float) -> np.ndarray:
-            since = clock.update(clock.alarms(nis), period_s)
-            return np.where(since < nr.hold_s - 1e-9, nr.kappa_burst, nr.kappa_base)
-
+        decide = NisRuleDecision(nr, data.n_trials)
         out = run_periodic_rule(cfg, data, nr.period_s, nr.kappa_base, decide)
         out.notes["nis-rule"] = (
             f"κ = {nr.kappa_burst:.3g} for {nr.hold_s:g} s after any period with NIS per row > "
