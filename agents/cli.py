@@ -5,6 +5,7 @@ by :mod:`qkf.cli`. Only typer and ``qkf.core`` are imported here; the commands i
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -148,6 +149,63 @@ def evaluate_cmd(
     )
     write_bench(res, folder)
     out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
+
+
+@app.command("dataset")
+def dataset_cmd(
+    scenario: Annotated[str, typer.Argument(help="Scenario: a preset name or a config path.")],
+    methods: Annotated[
+        str,
+        typer.Option(
+            help="Comma-separated method specs (as qkf bench --methods: kf, glr, nis-rule, "
+            "kf-tuned, …, LABEL=SPEC); one dataset each."
+        ),
+    ],
+    trials: Annotated[
+        int | None, typer.Option(help="Episodes: trials 0 … N−1 (config: run.trials).")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Seed of the trials (config: run.seed).")] = None,
+    controls: Annotated[
+        str, typer.Option(help="v4 controls of the action space, joined with + (kappa, reset, …).")
+    ] = "kappa+reset",
+    reward: Annotated[str, typer.Option(help="Reward of the environment.")] = "relative_state_gain",
+    period_s: Annotated[float, typer.Option(help="Decision period, s (one step).")] = 10.0,
+    out_path: Annotated[
+        str, typer.Option("--out", help="Datasets folder (Minari's MINARI_DATASETS_PATH).")
+    ] = "results/datasets",
+    set_: SetOption = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Minari datasets of qkf/TransferAlignment-v4 episodes driven by methods, one per method:
+    --out/qkf/transfer-alignment-v4-SCENARIO-METHOD-v0 (docs/environment.md, "Datasets").
+
+    The method's κ and calibration resets become the environment's moves; the actions stored
+    are the nearest discrete ones. An existing dataset is never replaced (exit 2, nothing
+    written); every input is checked before any work.
+    """
+    seed_option(seed)
+    from agents.datasets import make_datasets, plan_datasets
+    from qkf.core.montecarlo import progress_bar
+
+    try:
+        plan = plan_datasets(
+            scenario, methods, trials, seed, controls, reward, period_s, out_path, set_ or []
+        )
+    except ConfigError as exc:
+        raise fail(str(exc)) from None
+    total = len(plan.methods) * (plan.chunks + 1)
+    with progress_bar(total, "qkf dataset", enabled=not quiet, unit="parts") as bar:
+
+        def on_method(label: str, parts: int) -> Callable[[], None]:
+            bar.note(label)
+            return lambda: bar(1)
+
+        try:
+            written = make_datasets(plan, on_method)
+        except (ConfigError, ValueError, FileExistsError) as exc:
+            raise fail(str(exc)) from None
+    for path in written:
+        out.print(f"wrote {path}/", soft_wrap=True, markup=False, highlight=False)
 
 
 zoo_app = typer.Typer(

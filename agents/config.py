@@ -18,15 +18,33 @@
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
     reward_scale: 1.0          # SB3: the learner sees reward × this (evaluations do not)
     frame_stack: 1             # SB3: the policy sees its last k observations (VecFrameStack)
+    env_kwargs: {}             # keywords of the environment (ENVIRONMENTS[env].options)
+    imitation:                 # SB3 actor-critic agents: DAgger from the env's expert first
+      rounds: 4                # (env_kwargs must choose the expert, e.g. {expert: ...})
+      steps_per_round: 2048    # environment steps per round (all n_envs together)
+      beta0: 1.0               # round r follows the expert with probability beta0·beta_decay^r
+      beta_decay: 0.5
+      epochs: 10               # behavioural cloning on all rounds' data after each round
+      batch_size: 256
+      learning_rate: 0.001
+      then_rl: true            # then total_steps of the agent's own learning (false: stop)
 
 :func:`load_train_config` checks everything a training run will use before any work, and
 reports every problem at once, one line each (``FILE: dotted.field: message``): the schema,
 the action type against the agent, the reward against the environment's, the scenario and its
 ``overrides`` (loaded as the run will load them, by the environment's own check), the
 ``hyperparams`` against the SB3 algorithm's constructor (this imports SB3, so only for SB3
-agents: a tabular policy never loads torch) and the ``tabular`` settings (bins against the
-environment's observation size). Everything about the environment comes from its entry in
-:data:`envs.ENVIRONMENTS`.
+agents: a tabular policy never loads torch), the ``tabular`` settings (bins against the
+environment's observation size), ``env_kwargs`` against the environment's ``options`` and
+``imitation`` against the agent and the environment (an actor-critic SB3 agent without memory,
+an environment that can have an expert). Everything about the environment comes from its entry
+in :data:`envs.ENVIRONMENTS`.
+
+``imitation:`` (:class:`ImitationConfig`, :mod:`agents.imitation`): before its own learning, the
+agent imitates the environment's expert by DAgger, ``rounds`` rounds of ``steps_per_round``
+environment steps (rounded up to whole steps of all ``n_envs`` environments) with behavioural
+cloning on everything collected so far after each; ``then_rl: false`` keeps the cloned policy
+as the result. The expert is chosen by the environment's keyword ``expert`` in ``env_kwargs``.
 """
 
 from __future__ import annotations
@@ -68,6 +86,26 @@ class EvalConfig(StrictModel):
     every_steps: Annotated[int, Field(ge=1)] = 20_000
 
 
+class ImitationConfig(StrictModel):
+    """DAgger before reinforcement learning (:func:`agents.imitation.dagger`)."""
+
+    rounds: Annotated[int, Field(ge=1)] = 4
+    # environment steps per round, all n_envs together (like total_steps); collected as
+    # ceil(steps_per_round / n_envs) steps of the vectorised environment
+    steps_per_round: Annotated[int, Field(ge=1)] = 2048
+    beta0: Annotated[float, Field(ge=0.0, le=1.0)] = 1.0  # round r: expert w.p. beta0·decay^r
+    beta_decay: Annotated[float, Field(ge=0.0, le=1.0)] = 0.5
+    epochs: Annotated[int, Field(ge=1)] = 10  # cloning epochs over the aggregate, every round
+    batch_size: Annotated[int, Field(ge=1)] = 256
+    learning_rate: Annotated[float, Field(gt=0.0)] = 1e-3
+    then_rl: bool = True  # then total_steps of the agent's own learning; False: cloned only
+
+    def vector_steps(self, n_envs: int) -> int:
+        """Steps of the ``n_envs``-environment VecEnv per round (``steps_per_round`` rounded
+        up to a multiple of ``n_envs``)."""
+        return -(-self.steps_per_round // n_envs)
+
+
 class TrainConfig(StrictModel):
     agent: str
     env: str = ENV_ID  # configs written before env: existed train on the v0 environment
@@ -86,6 +124,8 @@ class TrainConfig(StrictModel):
     torch_threads: Annotated[int, Field(ge=1)] = 1  # 2-core machines: the env wants the other
     reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # SB3 agents learn from reward × this
     frame_stack: Annotated[int, Field(ge=1)] = 1  # SB3: the policy sees the last k observations
+    env_kwargs: dict[str, Any] = Field(default_factory=dict)  # ENVIRONMENTS[env].options
+    imitation: ImitationConfig | None = None  # DAgger from the env's expert before RL
 
     @field_validator("agent")
     @classmethod
@@ -143,8 +183,16 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
         problems.append(
             f"reward: {cfg.env} has no reward {cfg.reward!r}; known: {', '.join(env.rewards)}"
         )
+    for key in cfg.env_kwargs:
+        if key not in env.options:
+            accepts = (
+                f"accepts {', '.join(env.options)}" if env.options else "accepts no env_kwargs"
+            )
+            problems.append(f"env_kwargs.{key}: not a keyword {cfg.env} {accepts}")
     if check_scenario:
         problems += env.check_scenario(cfg.scenario, cfg.overrides)
+    if cfg.imitation is not None:
+        problems += _imitation_problems(cfg)
     if algo.load is None:  # the tabular agent
         if cfg.hyperparams:
             problems.append(
@@ -161,6 +209,31 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
         problems += _hyperparam_problems(algorithm_class(cfg.agent), cfg.hyperparams)
     if problems:
         raise ConfigError(f"{HEADER}\n  " + "\n  ".join(f"{source}: {p}" for p in problems))
+
+
+def _imitation_problems(cfg: TrainConfig) -> list[str]:
+    """Imitation needs an SB3 actor-critic without memory and an environment with an expert."""
+    algo = ALGORITHMS[cfg.agent]
+    problems = []
+    if algo.load is None:
+        problems.append("imitation: the tabular agent cannot imitate (an SB3 agent: ppo, a2c)")
+    elif algo.recurrent:
+        problems.append(
+            f"imitation: {cfg.agent} keeps an LSTM state; imitation clones memoryless policies"
+        )
+    else:
+        policy = algorithm_class(cfg.agent).policy_aliases.get(algo.policy)
+        if policy is not None and not hasattr(policy, "evaluate_actions"):
+            problems.append(
+                f"imitation: {cfg.agent}'s policy has no action likelihood to clone with "
+                "(an actor-critic agent: ppo, a2c)"
+            )
+    env = ENVIRONMENTS[cfg.env]
+    if "expert" not in env.options:
+        problems.append(f"imitation: {cfg.env} has no expert to imitate (no expert= keyword)")
+    elif cfg.env_kwargs.get("expert", env.kwargs.get("expert")) is None:
+        problems.append("imitation: needs env_kwargs.expert, the expert to imitate")
+    return problems
 
 
 def _unknown(key: str, known: list[str], owner: str) -> str:

@@ -8,7 +8,8 @@ One package per environment, on the estimation problem it is built on, and what 
   ones stay as they were, for the policies trained on them; ``Timed-v3`` is v3 with the clock,
   an ablation); ``qkf/TransferAlignment-v4`` adds the filter's own moves (``controls=``:
   process noise per block, resets, the assumed ADS noise; residual corrections of a classical
-  rule with ``base=``) and slow evidence. Single environment, batched Gymnasium vector environment, Stable-Baselines3 adapter.
+  rule with ``base=``) and slow evidence. Single environment, batched Gymnasium vector
+  environment, Stable-Baselines3 adapter.
 * :mod:`envs.redundant_gyros`: ``qkf/RedundantGyroCalibration-v0``, the same question asked
   of the redundant-gyro calibration UKF (docs/redundant_gyros.md).
 * :mod:`envs.common`: the κ action map, observation bounds, rendering, scenario checks and

@@ -6,6 +6,9 @@ registry (:data:`envs.ENVIRONMENTS`): the environment's own batched SB3 adapter 
 here knows an environment by name. :class:`ScaledReward` multiplies the reward the learner sees
 (``reward_scale``); RL Zoo3 uses it too (``agents/rl_zoo3/ppo.yml``).
 
+``env_kwargs`` (keywords of the environment, ``ENVIRONMENTS[env].options``) go to its
+constructor over the id's own keyword defaults (``spec.kwargs``).
+
 ``frame_stack: k`` wraps the environment in SB3's ``VecFrameStack``: the policy sees its last
 k observations side by side, oldest first, zeros before an episode's first
 (:class:`agents.policy.Policy` stacks the same way when it acts on the benchmark's trials).
@@ -45,10 +48,12 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
     }
     env: VecEnv
     if spec.sb3_vec_env is not None:  # one batched filter for all episodes
-        env = load_object(spec.sb3_vec_env)(n_envs, **kwargs, **spec.kwargs)
-    else:  # one environment per episode; gym.make adds the id's own arguments
+        # the id's own arguments, the config's env_kwargs over its keyword defaults
+        env = load_object(spec.sb3_vec_env)(n_envs, **{**kwargs, **spec.kwargs, **cfg.env_kwargs})
+    else:  # one environment per episode; gym.make adds the id's own arguments under ours
         import gymnasium as gym
 
+        kwargs.update(cfg.env_kwargs)
         env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
     env.seed(seed)
     if cfg.frame_stack > 1:  # the policy sees its last k observations, oldest first

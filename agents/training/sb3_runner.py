@@ -16,12 +16,18 @@ SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_step
   (:class:`~agents.training.records.HeldOutEpisodes`), the evaluations and best model of the run
   a resume continues, ``best/best.json`` and ``training.json``;
 - reward scaling for the learner (:class:`~agents.common.vec_env.ScaledReward`) and a
-  deterministic resume (:func:`~agents.training.plan.resume_seed`).
+  deterministic resume (:func:`~agents.training.plan.resume_seed`);
+- imitation first (``imitation:``): DAgger from the environment's expert
+  (:func:`agents.imitation.dagger`) on the training environment before ``model.learn``, its
+  rounds in ``imitation.json``; a resumed run does not imitate again (its checkpoint holds the
+  result), and ``then_rl: false`` saves the cloned policy as the model without learning.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
+import json
 import os
 import time
 import warnings
@@ -58,7 +64,10 @@ from agents.training.records import (
     write_best,
 )
 from qkf.core.config import ConfigError
-from qkf.core.io import atomic_write_bytes
+from qkf.core.io import atomic_write_bytes, atomic_write_text
+
+IMITATION = "imitation.json"
+"""The DAgger rounds of a run with ``imitation:`` (:class:`agents.imitation.DaggerRound`)."""
 
 
 class BetweenUpdates(EventCallback):
@@ -199,6 +208,38 @@ def _build(plan: TrainPlan, algo: Any, env: VecEnv, seed: int) -> Any:
         ) from None
 
 
+def _imitate(plan: TrainPlan, model: Any, env: VecEnv) -> None:
+    """DAgger from the environment's expert on the training environment (``imitation:``);
+    its rounds written to ``OUT/imitation.json``."""
+    from agents.imitation import dagger, find_expert
+
+    cfg = plan.cfg
+    im = cfg.imitation
+    assert im is not None
+    started = time.perf_counter()
+    rounds = dagger(
+        model,
+        env,
+        find_expert(env),
+        rounds=im.rounds,
+        steps_per_round=im.vector_steps(env.num_envs),
+        beta0=im.beta0,
+        beta_decay=im.beta_decay,
+        epochs=im.epochs,
+        batch_size=im.batch_size,
+        learning_rate=im.learning_rate,
+        seed=cfg.seed,
+    )
+    record = {
+        "algorithm": "dagger",
+        "n_envs": env.num_envs,
+        "vector_steps_per_round": im.vector_steps(env.num_envs),
+        "rounds": [dataclasses.asdict(r) for r in rounds],
+        "wall_s": round(time.perf_counter() - started, 1),
+    }
+    atomic_write_text(plan.out / IMITATION, json.dumps(record, indent=2) + "\n")
+
+
 def run_sb3(plan: TrainPlan, progress: bool) -> Path:
     """Train the plan's SB3 agent; returns the path of the saved model."""
     cfg, out = plan.cfg, plan.out
@@ -237,12 +278,15 @@ def run_sb3(plan: TrainPlan, progress: bool) -> Path:
     )
     schedule = RecordSchedule(cfg.eval.every_steps, start, resumed)
     started = time.perf_counter()
-    model.learn(
-        max(0, cfg.total_steps - start),
-        callback=BetweenUpdates(schedule, records),
-        progress_bar=progress,
-        reset_num_timesteps=not resumed,
-    )
+    if cfg.imitation is not None and not resumed:
+        _imitate(plan, model, env)
+    if cfg.imitation is None or cfg.imitation.then_rl:
+        model.learn(
+            max(0, cfg.total_steps - start),
+            callback=BetweenUpdates(schedule, records),
+            progress_bar=progress,
+            reset_num_timesteps=not resumed,
+        )
     buf = io.BytesIO()
     model.save(buf)
     atomic_write_bytes(out / "model.zip", buf.getvalue())

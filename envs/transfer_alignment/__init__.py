@@ -64,7 +64,7 @@ _DESCRIPTIONS = {
     "v4": "transfer alignment with the filter's own moves (controls=: kappa, blocks, reset, "
     "r_scale, joined with +; base= for residual controls) and slow evidence (current)",
 }
-V4_OPTIONS = ("controls", "base")
+V4_OPTIONS = ("controls", "base", "expert")
 """The keywords of v4 a training config's ``env_kwargs`` may set."""
 
 for _id, _obs in ENV_OBSERVATIONS.items():

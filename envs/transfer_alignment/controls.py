@@ -278,12 +278,19 @@ class ControlMap:
         """Where κ lies on the action set's log range, 0 … 1 (the observation's κ entry)."""
         return grid_position(kappa, self.kappas)
 
-    def actions_of(self, moves: Moves) -> np.ndarray:
-        """The discrete actions (N, D) nearest to ``moves`` (no base: absolute values), for
-        datasets and imitation of schedules found outside the environment."""
+    def actions_of(self, moves: Moves, base: Moves | None = None) -> np.ndarray:
+        """The discrete actions (N, D) nearest to ``moves``, for datasets and imitation of
+        decisions made outside the environment. A residual's are relative to the base rule's
+        decision ``base``: κ as a factor on the rule's, the reset as what is added to the
+        rule's in quadrature."""
+        kappa, reset = moves.kappa, moves.reset
+        if self.base is not None:
+            assert base is not None
+            kappa = moves.kappa / base.kappa
+            reset = np.sqrt(np.maximum(0.0, moves.reset**2 - base.reset**2))
         by_name = {
-            "kappa": moves.kappa, "q_att": moves.q_att, "q_bias": moves.q_bias,
-            "reset": moves.reset, "r_scale": moves.r_scale,
+            "kappa": kappa, "q_att": moves.q_att, "q_bias": moves.q_bias,
+            "reset": reset, "r_scale": moves.r_scale,
         }  # fmt: skip
         cols = []
         for d in self.dims:

@@ -100,12 +100,13 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
         data: str | Path | Sequence[str | Path] | None = None,
         controls: str | None = None,
         base: str | None = None,
+        expert: str | None = None,
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
         self._driver = EpisodeDriver(
             1, scenario, action_type, reward, overrides, period_s, observation, data,
-            controls, base,
+            controls, base, expert,
         )  # fmt: skip
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg
@@ -162,6 +163,11 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
             bool(out.truncated[0]),
             info,
         )
+
+    def expert_actions(self) -> np.ndarray:
+        """The expert's action for the next step (``expert=``, v4; an array of the action
+        space's shape)."""
+        return self._driver.expert_actions()[0]
 
     def render(self) -> np.ndarray | None:
         """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8

@@ -24,6 +24,7 @@ from gymnasium.utils import seeding
 from envs.common.actions import ActionMap
 from envs.common.bounds import DIVERGENCE_REWARD, observation_box
 from envs.transfer_alignment.controls import ControlMap
+from envs.transfer_alignment.experts import make_expert
 from envs.transfer_alignment.observations import OBSERVATIONS, PeriodView
 from envs.transfer_alignment.rewards import REWARDS, PeriodOutcome
 from qkf.transfer_alignment.config import Config, load_scenario
@@ -355,6 +356,7 @@ class EpisodeDriver:
         data: str | Path | Sequence[str | Path] | None = None,
         controls: str | None = None,
         base: str | None = None,
+        expert: str | None = None,
     ) -> None:
         if n < 1:
             raise ValueError("num_envs must be at least 1")
@@ -387,6 +389,7 @@ class EpisodeDriver:
         # the residual's base decision for each episode's next period
         base_rule = None if self.controls is None else self.controls.base
         self.base_moves = None if base_rule is None else base_rule.start()
+        self.expert = make_expert(expert, self.controls, self.cfg, n, period_s)
 
     @property
     def episode_steps(self) -> int:
@@ -403,6 +406,8 @@ class EpisodeDriver:
         rows = np.asarray(rows, dtype=np.int64)
         seeds = [int(self.rngs[i].integers(2**63 - 1)) for i in rows]
         self.restart_base(rows)
+        if self.expert is not None:
+            self.expert.reset(rows)
         return self.core.reset_many(rows, seeds)
 
     def restart_base(self, rows: np.ndarray) -> None:
@@ -413,6 +418,14 @@ class EpisodeDriver:
         start = self.controls.base.start()
         for mine, first in zip(self.base_moves.fields(), start.fields(), strict=True):
             mine[rows] = first[rows]
+
+    def expert_actions(self) -> np.ndarray:
+        """The expert's actions (``expert=``) for every episode's next period: (N,) for a
+        one-dimensional action space, else (N, D); ``ValueError`` without an expert."""
+        if self.expert is None or self.controls is None:
+            raise ValueError("no expert: make the environment with expert= (v4)")
+        actions = self.expert.actions(self.base_moves)
+        return actions[:, 0] if isinstance(self.controls.space, spaces.Discrete) else actions
 
     def step(self, actions: Any) -> StepOutput:
         """Map one action per episode to κ (v4: to moves) and run one decision period in all
@@ -430,6 +443,8 @@ class EpisodeDriver:
         base = self.controls.base
         if base is not None:
             self.base_moves = base(out.nis, out.valid, out.t_s)
+        if self.expert is not None:
+            self.expert.update(out)
         return out
 
 

@@ -38,10 +38,11 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
         observation: str = "v0",
         controls: str | None = None,
         base: str | None = None,
+        expert: str | None = None,
     ) -> None:
         self._driver = EpisodeDriver(
             num_envs, scenario, action_type, reward, overrides, period_s, observation,
-            controls=controls, base=base,
+            controls=controls, base=base, expert=expert,
         )  # fmt: skip
         self.cfg = self._driver.cfg
         self.actions = self._driver.actions
@@ -79,6 +80,11 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
         if ended.size:  # the episodes that ended start over, together
             obs[ended] = self._driver.reset_envs(ended)
         return obs, out.reward.astype(np.float32), dones, infos
+
+    def expert_actions(self) -> np.ndarray:
+        """The expert's actions for every episode's next period (``expert=``, v4):
+        :mod:`envs.transfer_alignment.experts`, what :func:`agents.imitation.dagger` asks."""
+        return self._driver.expert_actions()
 
     def close(self) -> None:
         return None

@@ -48,6 +48,7 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         render_mode: str | None = None,
         controls: str | None = None,
         base: str | None = None,
+        expert: str | None = None,
         **kwargs: Any,
     ) -> None:
         if kwargs.get("data") is not None:  # not silently a simulation instead
@@ -60,7 +61,7 @@ class BatchedTransferAlignmentEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray])
         self.num_envs = num_envs
         self._driver = EpisodeDriver(
             num_envs, scenario, action_type, reward, overrides, period_s, observation,
-            controls=controls, base=base,
+            controls=controls, base=base, expert=expert,
         )  # fmt: skip
         self.episode_steps = self._driver.episode_steps
         self.cfg = self._driver.cfg

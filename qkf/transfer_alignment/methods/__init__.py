@@ -48,6 +48,7 @@ from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.fixed import run_kf, run_kf_tuned
 from qkf.transfer_alignment.methods.glr import run_glr
 from qkf.transfer_alignment.methods.hindsight import run_hindsight
+from qkf.transfer_alignment.methods.hindsight_moves import hindsight_moves_method
 from qkf.transfer_alignment.methods.imm import run_imm
 from qkf.transfer_alignment.methods.mmae import run_mmae
 from qkf.transfer_alignment.methods.nis_rule import run_nis_rule
@@ -119,6 +120,9 @@ METHOD_FACTORIES: Registry[Callable[[str], Method]] = Registry(
     "method factory", group="qkf.method_factories"
 )
 """``FACTORY:ARGUMENT`` specs: ``factory(argument) -> method``."""
+METHOD_FACTORIES.register("hindsight-moves", hindsight_moves_method)
+"""A yardstick: per trial, the best schedule of the moves of a v4 action space
+(``hindsight-moves:kappa+reset+r_scale``) with the trial's truth known."""
 
 
 class MethodSpecError(ValueError):
