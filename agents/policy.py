@@ -31,11 +31,12 @@ from agents.config import TrainConfig
 from agents.policy_sources import policy_config, saved_spaces, settings_files, split_spec
 from envs import ENVIRONMENTS
 from envs.common import ActionMap
-from envs.transfer_alignment import BatchedEpisodes
+from envs.transfer_alignment import BatchedEpisodes, EpisodeDriver
 from qkf.core.config import ConfigError
 from qkf.core.results_cache import code_fingerprint
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput, per_epoch
+from qkf.transfer_alignment.methods.moves_schedule import MoveSchedule, run_moves
 from qkf.transfer_alignment.methods.oracle import run_schedule
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -104,7 +105,11 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
     """Filter the trials with κ chosen by the saved policy at ``path``."""
     policy = Policy(path)
     values = np.asarray(cfg.adaptive.actions.values())
-    if policy.path.suffix == ".zip" and policy.cfg.action_type == "discrete":
+    if (
+        policy.path.suffix == ".zip"
+        and policy.cfg.action_type == "discrete"
+        and "controls" not in ENVIRONMENTS[policy.cfg.env].options
+    ):
         _, _, n = saved_spaces(policy.path)
         if n is not None and n != values.size:
             raise ConfigError(
@@ -118,6 +123,9 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
             f"{path}: trained on {policy.cfg.env}, not a transfer-alignment environment"
         )
     observation = env.observation
+    env_kwargs = {**env.kwargs, **dict(getattr(policy.cfg, "env_kwargs", {}) or {})}
+    if env_kwargs.get("controls") is not None:  # v4: the policy makes the filter's moves
+        return _run_moves_policy(cfg, data, policy, path, observation, env_kwargs)
     core = BatchedEpisodes(
         cfg, data.n_trials, "likelihood", policy.cfg.period_s, observation=observation
     )
@@ -148,6 +156,43 @@ def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
         innov=replay.innov,
         nis=replay.nis,
     )
+
+
+def _run_moves_policy(
+    cfg: Config,
+    data: ScenarioData,
+    policy: Policy,
+    path: str,
+    observation: str,
+    env_kwargs: dict[str, Any],
+) -> MethodOutput:
+    """A v4 policy: its actions are moves of the environment's ``controls`` (a residual's on
+    top of its ``base`` rule), made in the same episodes as in training; the output is
+    :func:`~qkf.transfer_alignment.methods.moves_schedule.run_moves` of the moves it made
+    (the same filter run, so the same estimates, with the covariance recorded)."""
+    driver = EpisodeDriver(
+        data.n_trials, cfg, policy.cfg.action_type, "oracle", None, policy.cfg.period_s,
+        observation, controls=env_kwargs["controls"], base=env_kwargs.get("base"),
+    )  # fmt: skip
+    assert driver.controls is not None
+    n = data.n_trials
+    obs = driver.core.load(data)
+    driver.restart_base(np.arange(n))
+    policy.reset(n)
+    made = []
+    for _ in range(0, data.n_epochs, driver.core.period):
+        moves = driver.controls.moves(policy.act(obs), n, driver.base_moves)
+        made.append(moves)
+        obs = driver.step_moves(moves).obs
+    schedule = MoveSchedule.from_moves(driver.core.period, made)
+    out = run_moves(cfg, data, schedule)
+    out.diverged = out.diverged | driver.core.kf.diverged
+    base = env_kwargs.get("base")
+    out.notes["policy"] = (
+        f"{policy.cfg.agent} policy from {path}: controls {env_kwargs['controls']}"
+        + (f" on base {base}" if base else "")
+    )
+    return out
 
 
 @dataclass(frozen=True)

@@ -110,8 +110,10 @@ def saved_spaces(model: Path) -> tuple[list[int], str, int | None]:
     try:
         shape = [int(v) for v in data["observation_space"]["_shape"]]
         action = data["action_space"]
-        discrete = "Discrete" in str(action[":type:"])
-        n = int(action["n"]) if discrete else None
+        kind = str(action[":type:"])
+        discrete = "Discrete" in kind
+        # MultiDiscrete (v4's controls): several dimensions, no single count
+        n = int(action["n"]) if discrete and "MultiDiscrete" not in kind else None
     except (KeyError, TypeError, ValueError):
         raise ConfigError(f"{model}: its data record has no observation or action space") from None
     return shape, "discrete" if discrete else "continuous", n
