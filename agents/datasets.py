@@ -563,7 +563,7 @@ def plan_datasets(
     ids = tuple(dataset_id(scenario, m.name) for m in named)
     for m in named:
         if not id_part(m.name):
-            raise ConfigError(f"--methods: {m.name!r} gives no dataset name; label it (NAME=SPEC)")
+            raise ConfigError(f"--methods: {m.name!r} gives no dataset name; label it (LABEL=SPEC)")
     twice = sorted({i for i in ids if ids.count(i) > 1})
     if twice:
         raise ConfigError(f"--methods: two methods give the dataset id {twice[0]}; label them")

@@ -5,6 +5,7 @@ VecEnv whose expert is a known function of the state, the training config's ``en
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ from stable_baselines3.common.vec_env import (
 )
 
 from agents.common.vec_env import ScaledReward
-from agents.config import TrainConfig, load_train_config, validate_train_config
+from agents.config import ImitationConfig, TrainConfig, load_train_config, validate_train_config
 from agents.imitation import DaggerRound, behaviour_clone, dagger, find_expert
 from envs import ENV_ID_V4
 from envs.transfer_alignment.sb3 import BatchedTransferAlignmentSB3Env
@@ -112,6 +113,16 @@ class ToyVecEnv(VecEnv):
         return [False] * self.num_envs
 
 
+@pytest.fixture(autouse=True)
+def _one_torch_thread() -> Iterator[None]:
+    """One thread, as ``qkf train`` runs torch (``torch_threads: 1``): tiny networks on two busy
+    cores are many times slower with two."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _ppo(env: VecEnv, seed: int = 0) -> PPO:
     return PPO("MlpPolicy", env, n_steps=32, batch_size=32, seed=seed, device="cpu")
 
@@ -125,7 +136,7 @@ def _expert_data(env: ToyVecEnv, steps: int, seed: int) -> tuple[np.ndarray, np.
         a = env.expert_actions()
         obs.append(o.copy())
         acts.append(a)
-        o, _, _, _ = env.step(a)
+        o = env.step(a)[0]  # type: ignore[assignment]
     return np.concatenate(obs), np.concatenate(acts)
 
 
@@ -149,9 +160,7 @@ def test_cloning_expert_data_reaches_the_expert(kind: str) -> None:
     obs, acts = _expert_data(env, 250, seed=1)  # 2000 samples
     held_obs, held_acts = _expert_data(env, 60, seed=2)
     before = _agreement(model, held_obs, held_acts)
-    losses = behaviour_clone(
-        model, obs, acts, epochs=15, batch_size=64, learning_rate=3e-3, seed=0
-    )
+    losses = behaviour_clone(model, obs, acts, epochs=15, batch_size=64, learning_rate=3e-3, seed=0)
     assert len(losses) == 15
     assert losses[-1] < 0.5 * losses[0]
     after = _agreement(model, held_obs, held_acts)
@@ -163,9 +172,7 @@ def test_cloning_box_actions() -> None:
     model = _ppo(env)
     obs, acts = _expert_data(env, 250, seed=1)
     held_obs, held_acts = _expert_data(env, 60, seed=2)
-    losses = behaviour_clone(
-        model, obs, acts, epochs=15, batch_size=64, learning_rate=3e-3, seed=0
-    )
+    losses = behaviour_clone(model, obs, acts, epochs=15, batch_size=64, learning_rate=3e-3, seed=0)
     assert losses[-1] < losses[0] - 1.0  # the Gaussian's σ shrinks as its mean fits
     pred, _ = model.predict(held_obs, deterministic=True)
     assert np.mean(np.abs(pred - held_acts) <= 0.1) >= 0.9
@@ -232,7 +239,7 @@ def test_dagger_learns_the_expert_on_its_own_states() -> None:
     for _ in range(50):
         act, _ = model.predict(obs, deterministic=True)
         agree.append(act == env.expert_actions())
-        obs, _, _, _ = env.step(act)
+        obs = env.step(act)[0]  # type: ignore[assignment]
     assert np.mean(agree) >= 0.95
 
 
@@ -288,6 +295,20 @@ def test_env_kwargs_are_checked_against_the_environment() -> None:
     validate_train_config(ok, "cfg.yaml", check_scenario=False)
 
 
+def test_env_kwargs_reach_the_environment() -> None:
+    from agents.common.vec_env import make_vec_env
+
+    short = ["scenario.duration_s=100"]
+    base = TrainConfig(agent="ppo", env=ENV_ID_V4, overrides=short)
+    assert make_vec_env(base, 1, 0).action_space == spaces.Discrete(11)  # controls: kappa
+    moves = base.model_copy(update={"env_kwargs": {"controls": "kappa+reset"}})
+    assert make_vec_env(moves, 1, 0).action_space == spaces.MultiDiscrete([11, 5])
+    # values only the environment can judge: a ConfigError naming env_kwargs, not a traceback
+    bad = base.model_copy(update={"env_kwargs": {"controls": "bogus"}})
+    with pytest.raises(ConfigError, match=r"env_kwargs: qkf/TransferAlignment-v4 refuses .*bogus"):
+        make_vec_env(bad, 1, 0)
+
+
 def test_env_kwargs_from_a_preset_with_set() -> None:
     with pytest.raises(ConfigError, match=r"env_kwargs\.bogus: "):
         load_train_config(str(TRAINING / "train_ppo.yaml"), ["env_kwargs={bogus: 1}"])
@@ -329,8 +350,7 @@ def test_imitation_steps_are_environment_steps() -> None:
 def test_run_sb3_imitates_before_learning(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, then_rl: bool
 ) -> None:
-    from agents.training import plan_training
-    from agents.training import sb3_runner
+    from agents.training import plan_training, sb3_runner
     from agents.training.records import HeldOutEpisodes
 
     def toy(cfg: Any, n_envs: int, seed: int) -> VecEnv:
@@ -348,10 +368,9 @@ def test_run_sb3_imitates_before_learning(
         total_steps=64,
         hyperparams={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
         eval={"episodes": 1, "seed": 7, "every_steps": 64},  # type: ignore[arg-type]
-        imitation={  # type: ignore[arg-type]
-            "rounds": 2, "steps_per_round": 21, "epochs": 2, "batch_size": 16,
-            "then_rl": then_rl,
-        },  # fmt: skip
+        imitation=ImitationConfig(
+            rounds=2, steps_per_round=21, epochs=2, batch_size=16, then_rl=then_rl
+        ),
     )
     plan = plan_training(cfg, tmp_path / "run")
     path = sb3_runner.run_sb3(plan, progress=False)

@@ -7,7 +7,8 @@ here knows an environment by name. :class:`ScaledReward` multiplies the reward t
 (``reward_scale``); RL Zoo3 uses it too (``agents/rl_zoo3/ppo.yml``).
 
 ``env_kwargs`` (keywords of the environment, ``ENVIRONMENTS[env].options``) go to its
-constructor over the id's own keyword defaults (``spec.kwargs``).
+constructor over the id's own keyword defaults (``spec.kwargs``); values the environment
+refuses are a ``ConfigError`` naming ``env_kwargs``.
 
 ``frame_stack: k`` wraps the environment in SB3's ``VecFrameStack``: the policy sees its last
 k observations side by side, oldest first, zeros before an episode's first
@@ -19,6 +20,7 @@ single environment reset with seed ``seed + i`` (docs/environment.md, "Seeding")
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.vec_env import (
@@ -30,6 +32,7 @@ from stable_baselines3.common.vec_env import (
 )
 
 from envs import ENVIRONMENTS
+from qkf.core.config import ConfigError
 from qkf.core.registry import load_object
 
 if TYPE_CHECKING:
@@ -47,14 +50,25 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
         "period_s": cfg.period_s,
     }
     env: VecEnv
-    if spec.sb3_vec_env is not None:  # one batched filter for all episodes
-        # the id's own arguments, the config's env_kwargs over its keyword defaults
-        env = load_object(spec.sb3_vec_env)(n_envs, **{**kwargs, **spec.kwargs, **cfg.env_kwargs})
-    else:  # one environment per episode; gym.make adds the id's own arguments under ours
-        import gymnasium as gym
+    try:
+        if spec.sb3_vec_env is not None:  # one batched filter for all episodes
+            # the id's own arguments, the config's env_kwargs over its keyword defaults
+            options = {**kwargs, **spec.kwargs, **cfg.env_kwargs}
+            env = load_object(spec.sb3_vec_env)(n_envs, **options)
+        else:  # one environment per episode; gym.make adds the id's own arguments under ours
+            import gymnasium as gym
 
-        kwargs.update(cfg.env_kwargs)
-        env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
+            kwargs.update(cfg.env_kwargs)
+            env = DummyVecEnv([lambda: gym.make(cfg.env, **kwargs) for _ in range(n_envs)])
+    except (TypeError, ValueError) as exc:
+        if not cfg.env_kwargs:  # the rest of the config was checked when it was loaded
+            raise
+        # the values of env_kwargs: only the environment itself can judge them
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(
+            f"invalid training config\n  env_kwargs: {cfg.env} refuses "
+            f"{json.dumps(cfg.env_kwargs, default=str)}: {msg}"
+        ) from None
     env.seed(seed)
     if cfg.frame_stack > 1:  # the policy sees its last k observations, oldest first
         env = VecFrameStack(env, cfg.frame_stack)

@@ -35,6 +35,7 @@ next period's start, not the next epoch).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -162,8 +163,9 @@ class GlrBase:
 
     def __call__(self, nis: np.ndarray, valid: np.ndarray, t_end: np.ndarray) -> Moves:
         reopen = self.rule(np.where(valid, nis, np.nan), t_end)
-        moves = Moves.nominal(self.n, self.kappa0)
-        return Moves(*moves.fields()[:4], np.where(reopen, self.fraction, 0.0))
+        return dataclasses.replace(
+            Moves.nominal(self.n, self.kappa0), reset=np.where(reopen, self.fraction, 0.0)
+        )
 
 
 BASES: Registry[Callable[[Config, int, float], BaseRule]] = Registry("base", group=None)

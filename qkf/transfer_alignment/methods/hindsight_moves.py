@@ -28,7 +28,7 @@ held constant (factors) or sparse (resets). Stage scores are logged (``hindsight
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -161,9 +161,7 @@ def _take(sched: MoveSchedule, rows: np.ndarray, cand: MoveSchedule, pick: np.nd
 
 def _candidates(sched: MoveSchedule, trials: np.ndarray) -> MoveSchedule:
     """Copies of the incumbent's rows of ``trials`` (to be edited)."""
-    names = ("kappa", "q_att", "q_bias", "r_scale", "reset")
-    picked = {n: np.array(f[trials]) for n, f in zip(names, sched.fields(), strict=True)}
-    return replace(sched, **picked)
+    return MoveSchedule(sched.period, *(np.array(f[trials]) for f in sched.fields()))
 
 
 @dataclass(frozen=True)
@@ -184,6 +182,7 @@ class HindsightMoves:
         notes: dict[str, str] = {}
         if "kappa" in moves:  # stage 1: the κ-only hindsight
             first = hindsight(cfg, data)
+            assert first.kappa is not None
             kappa = first.kappa[:, ::period]
             notes.update({k: v for k, v in first.notes.items() if k.startswith("hindsight")})
         else:
