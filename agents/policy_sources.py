@@ -132,7 +132,13 @@ def _env_fields(env_kwargs: Any, source: str) -> dict[str, Any]:
     if not isinstance(env_kwargs, dict):
         raise ConfigError(f"{source}: env_kwargs: not a mapping")
     known = ("scenario", "overrides", "action_type", "reward", "period_s")
-    return {k: env_kwargs[k] for k in known if k in env_kwargs}
+    fields = {k: env_kwargs[k] for k in known if k in env_kwargs}
+    # the environment's own keywords (v4: controls, base, expert) become the config's
+    # env_kwargs; which ones an environment accepts is checked with the whole config
+    rest = {k: v for k, v in env_kwargs.items() if k not in (*known, "observation", "render_mode")}
+    if rest:
+        fields["env_kwargs"] = rest
+    return fields
 
 
 def from_rl_zoo3(model: Path, folder: Path) -> TrainConfig:

@@ -246,3 +246,38 @@ def test_hindsight_moves_only_improves_and_reproduces_its_score() -> None:
     assert np.all(np.diff(scores, axis=1) <= 1e-12)
     final = estimate_scores(cfg, out.est, data, cfg.adaptive.tuned.metric)
     np.testing.assert_allclose(final, scores[:, -1], rtol=1e-9)
+
+
+def test_a_v4_policy_is_judged_with_the_moves_it_makes(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """policy:PATH of a residual v4 model: the benchmark's estimates are those of the same
+    policy driving the environment by hand, and the moves it made are in the logs."""
+    import yaml
+    from stable_baselines3 import PPO
+
+    from envs.transfer_alignment.sb3 import BatchedTransferAlignmentSB3Env
+
+    kw = dict(controls="kappa+reset+r_scale", base="glr")
+    venv = BatchedTransferAlignmentSB3Env(
+        2, "thermal_snap_random", reward="oracle", overrides=SHORT, observation="v4", **kw
+    )
+    model = PPO("MlpPolicy", venv, n_steps=8, batch_size=8, seed=0, device="cpu")
+    model.save(tmp_path / "model.zip")
+    settings = {"agent": "ppo", "env": "qkf/TransferAlignment-v4", "env_kwargs": kw,
+                "scenario": "thermal_snap_random", "reward": "oracle"}  # fmt: skip
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(settings))
+    cfg = load_scenario("thermal_snap_random", SHORT)
+    data = simulate(cfg, 7, [0, 1, 2])
+    out = resolve_method(f"policy:{tmp_path / 'model.zip'}").method(cfg, data)
+    driver = EpisodeDriver(3, cfg, "discrete", "oracle", None, 10.0, "v4", **kw)
+    obs = driver.core.load(data)
+    driver.restart_base(np.arange(3))
+    est, made = [], []
+    for _ in range(driver.core.episode_steps):
+        action, _ = model.predict(obs, deterministic=True)
+        step = driver.step(action)
+        assert step.moves is not None
+        made.append(step.moves.r_scale)
+        est.append(step.est)
+        obs = step.obs
+    np.testing.assert_array_equal(out.est, np.concatenate(est, axis=1)[:, : data.n_epochs])
+    np.testing.assert_array_equal(out.logs["moves_r_scale"], np.stack(made, axis=1))

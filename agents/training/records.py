@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from agents.config import TrainConfig
     from agents.training.plan import TrainPlan
 
-RUN_FILES = ("config.yaml", "training.json", "model.zip", "model.npz")
+RUN_FILES = ("config.yaml", "training.json", "model.zip", "model.npz", "imitation.json")
 RUN_DIRS = ("checkpoints", "eval", "best", "tb")
 """What a run writes into its folder (and ``force_new`` removes; nothing else is touched)."""
 CHECKPOINTS = "checkpoints"
