@@ -26,8 +26,9 @@ nominal (κ: the action set's nominal value).
 **Residual controls** (``base="nis-rule"`` or ``base="glr"``): a classical rule decides every
 period as the method of that name would (the config's ``adaptive.nis_rule`` or
 ``adaptive.glr`` settings), and the agent's action corrects it. The κ dimension becomes a
-factor on the rule's κ (:data:`RESIDUAL_FACTORS`, index 2 = × 1); a reset adds to the rule's
-(in quadrature); the other dimensions are absolute as above. The all-nominal action
+factor on the rule's κ (:data:`RESIDUAL_FACTORS`, index 2 = × 1); the reset dimension
+(:data:`RESIDUAL_RESETS`) vetoes the rule's reset (index 0), keeps it (index 1) or adds one to
+it (in quadrature); the other dimensions are absolute as above. The all-nominal action
 (:meth:`ControlMap.neutral`) therefore runs the rule itself: with ``base="nis-rule"`` the
 ``nis-rule`` method, bit for bit; with ``base="glr"`` GLR decided per period (re-opening at the
 next period's start, not the next epoch).
@@ -59,6 +60,10 @@ from qkf.transfer_alignment.params import FilterParams
 
 RESIDUAL_FACTORS = (0.1, 10.0**-0.5, 1.0, 10.0**0.5, 10.0)
 """The residual κ dimension: factors on the base rule's κ (index 2: the rule's own)."""
+VETO = -1.0
+RESIDUAL_RESETS = (VETO, *RESET_FRACTIONS)
+"""The residual reset dimension: index 0 vetoes the rule's reset (none this period), index 1
+keeps the rule's decision, the others add a reset of that size to it (in quadrature)."""
 
 CONTROL_DIMENSIONS = {
     "kappa": ("kappa",),
@@ -209,7 +214,11 @@ class ControlMap:
             "kappa": kappa_dim,
             "q_att": Dimension("q_att", np.asarray(BLOCK_SCALES), BLOCK_SCALES.index(1.0)),
             "q_bias": Dimension("q_bias", np.asarray(BLOCK_SCALES), BLOCK_SCALES.index(1.0)),
-            "reset": Dimension("reset", np.asarray(RESET_FRACTIONS), 0, log=False),
+            "reset": (
+                Dimension("reset", np.asarray(RESIDUAL_RESETS), 1, log=False)
+                if base is not None
+                else Dimension("reset", np.asarray(RESET_FRACTIONS), 0, log=False)
+            ),
             "r_scale": Dimension("r_scale", np.asarray(R_SCALES), R_SCALES.index(1.0)),
         }
         self.dims = tuple(grids[d] for d in self.names)
@@ -255,6 +264,8 @@ class ControlMap:
                 out[:, j] = np.exp(lo + (u[:, j] + 1.0) / 2.0 * (hi - lo))
             else:  # reset: none below 0, then linear up to the largest size
                 out[:, j] = d.grid[-1] * np.maximum(0.0, u[:, j])
+                if d.grid[0] == VETO:  # a residual's: the lowest quarter vetoes the rule's
+                    out[:, j] = np.where(u[:, j] < -0.5, VETO, out[:, j])
         return out
 
     def moves(self, actions: Any, n: int, base: Moves | None = None) -> Moves:
@@ -263,7 +274,9 @@ class ControlMap:
         if self.base is not None:
             assert base is not None
             kappa = base.kappa * v.get("kappa", 1.0)
-            reset = np.sqrt(base.reset**2 + v.get("reset", 0.0) ** 2)  # in quadrature
+            add = v.get("reset", np.zeros(n))
+            # in quadrature on top of the rule's reset, or none at all (the veto)
+            reset = np.where(add == VETO, 0.0, np.sqrt(base.reset**2 + np.maximum(add, 0.0) ** 2))
         else:
             kappa = v.get("kappa", np.full(n, self.kappa_nominal))
             reset = v.get("reset", np.zeros(n))
@@ -289,7 +302,9 @@ class ControlMap:
         if self.base is not None:
             assert base is not None
             kappa = moves.kappa / base.kappa
-            reset = np.sqrt(np.maximum(0.0, moves.reset**2 - base.reset**2))
+            vetoed = (moves.reset == 0.0) & (base.reset > 0.0)
+            added = np.sqrt(np.maximum(0.0, moves.reset**2 - base.reset**2))
+            reset = np.where(vetoed, VETO, added)
         by_name = {
             "kappa": kappa, "q_att": moves.q_att, "q_bias": moves.q_bias,
             "reset": reset, "r_scale": moves.r_scale,
