@@ -290,3 +290,29 @@ def test_a_v4_policy_is_judged_with_the_moves_it_makes(tmp_path) -> None:  # typ
         obs = step.obs
     np.testing.assert_array_equal(out.est, np.concatenate(est, axis=1)[:, : data.n_epochs])
     np.testing.assert_array_equal(out.logs["moves_r_scale"], np.stack(made, axis=1))
+
+
+def test_mixture_tuned_bases_run_the_rule_with_the_mixed_baselines_settings(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """base='glr-tuned-mixed' runs GLR with what glr-tuned finds on the training mixture (the
+    tuning is stubbed here: it is the tuner's to test), at the judged step and duration."""
+    from envs.transfer_alignment.controls import BASES
+    from qkf.transfer_alignment.methods import tuned
+
+    seen = {}
+    real = tuned.TUNED_METHODS["glr-tuned"]
+
+    def prepare(cfg):  # type: ignore[no-untyped-def]
+        seen["events"] = cfg.scenario.random_events
+        seen["duration"] = cfg.scenario.duration_s
+        settings = (("threshold", 7.5), ("reset_ppm", 300.0), ("kappa", 2.5))
+        return tuned.TunedSetting(real, settings)
+
+    stub = type("Stub", (), {"prepare": staticmethod(prepare)})()
+    monkeypatch.setitem(tuned.TUNED_METHODS, "glr-tuned", stub)
+    cfg = load_scenario("thermal_snap_random", SHORT)
+    base = BASES["glr-tuned-mixed"](cfg, 2, 10.0)
+    mixture = load_scenario("mixed_random").scenario.random_events
+    assert seen == {"events": mixture, "duration": 600.0}
+    assert base.rule.settings.threshold == 7.5  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(base.start().kappa, 2.5)
+    np.testing.assert_allclose(base.fraction, 300e-6 / 1500e-6)  # type: ignore[attr-defined]

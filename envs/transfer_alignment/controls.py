@@ -173,10 +173,29 @@ class GlrBase:
         )
 
 
+def tuned_on_mixture(name: str, section: str, rule: Callable[[Config, int, float], BaseRule]):  # type: ignore[no-untyped-def]
+    """The base ``rule`` with the settings the ``NAME-mixed`` baseline runs with: ``name``
+    (``glr-tuned``, ``nis-rule-tuned``) tuned on the training mixture at the config's step
+    and duration (from the tuning cache when it has them; else tuned now, minutes)."""
+
+    def factory(cfg: Config, n: int, period_s: float) -> BaseRule:
+        from qkf.transfer_alignment.methods.on_mixture import mixture_config
+        from qkf.transfer_alignment.methods.tuned import TUNED_METHODS, with_section
+
+        tuned = TUNED_METHODS[name].prepare(mixture_config(cfg))
+        return rule(with_section(cfg, section, dict(tuned.settings)), n, period_s)
+
+    return factory
+
+
 BASES: Registry[Callable[[Config, int, float], BaseRule]] = Registry("base", group=None)
-"""Residual bases by name (``base=`` of v4): ``factory(cfg, n, period_s)``."""
+"""Residual bases by name (``base=`` of v4): ``factory(cfg, n, period_s)``. The ``-mixed``
+ones run the rule with the settings of the baseline of that name (tuned on the training
+mixture): the best classical level on the mixture to start from."""
 BASES.register("nis-rule", NisRuleBase)
 BASES.register("glr", GlrBase)
+BASES.register("glr-tuned-mixed", tuned_on_mixture("glr-tuned", "glr", GlrBase))
+BASES.register("nis-rule-tuned-mixed", tuned_on_mixture("nis-rule-tuned", "nis_rule", NisRuleBase))
 
 
 class ControlMap:
