@@ -316,3 +316,28 @@ def test_mixture_tuned_bases_run_the_rule_with_the_mixed_baselines_settings(monk
     assert base.rule.settings.threshold == 7.5  # type: ignore[attr-defined]
     np.testing.assert_array_equal(base.start().kappa, 2.5)
     np.testing.assert_allclose(base.fraction, 300e-6 / 1500e-6)  # type: ignore[attr-defined]
+
+
+def test_r_step_moves_a_persistent_level_within_the_grid() -> None:
+    """r_step: each action moves the episode's r one grid step (or keeps it); the level holds
+    between steps, stops at the grid's ends, restarts at 1 with the episode; the expert's
+    mapping answers the step toward the wanted r."""
+    from qkf.transfer_alignment.moves import R_SCALES
+
+    cfg = load_scenario("thermal_snap", SHORT)
+    cmap = ControlMap(cfg, "kappa+r_step", "discrete", n=2)
+    assert list(cmap.space.nvec) == [11, 3]  # type: ignore[attr-defined]
+    up, keep, down = [5, 2], [5, 1], [5, 0]
+    seen = [cmap.moves(np.array([a, keep]), 2).r_scale for a in (up, up, keep, down)]
+    np.testing.assert_allclose([s[0] for s in seen], [2**0.5, 2.0, 2.0, 2**0.5])
+    np.testing.assert_array_equal([s[1] for s in seen], 1.0)
+    for _ in range(10):
+        top = cmap.moves(np.array([up, down]), 2).r_scale
+    np.testing.assert_array_equal(top, [R_SCALES[-1], R_SCALES[0]])
+    cmap.restart(np.array([0]))
+    np.testing.assert_array_equal(cmap.moves(np.array([keep, keep]), 2).r_scale, [1.0, 0.5])
+    wanted = Moves.nominal(2)
+    wanted = dataclasses.replace(wanted, r_scale=np.array([4.0, 0.5]))
+    np.testing.assert_array_equal(cmap.actions_of(wanted)[:, 1], [2, 1])
+    with pytest.raises(ValueError, match="r_step"):
+        parse_controls("r_scale+r_step")

@@ -16,6 +16,8 @@ Control      Dimensions              Values (discrete: an index; continuous: [�
                                      f_max · max(0, u)
 ``r_scale``  r                       :data:`~qkf.transfer_alignment.moves.R_SCALES` (½ … 4 ×
                                      the assumed ADS attitude σ), log scale
+``r_step``   Δr                      one step down the r grid, keep, one step up (persistent:
+                                     the episode's r moves; continuous: thirds of [−1, 1])
 ===========  ======================  ==========================================================
 
 ``blocks`` holds the calibration κ, so it does not combine with ``kappa``. Action space:
@@ -70,9 +72,12 @@ CONTROL_DIMENSIONS = {
     "blocks": ("q_att", "q_bias", "kappa"),
     "reset": ("reset",),
     "r_scale": ("r_scale",),
+    "r_step": ("r_step",),
 }
 """The dimensions each control adds, in action order."""
-DIMENSION_ORDER = ("kappa", "q_att", "q_bias", "reset", "r_scale")
+DIMENSION_ORDER = ("kappa", "q_att", "q_bias", "reset", "r_scale", "r_step")
+R_STEPS = (-1.0, 0.0, 1.0)
+"""``r_step``: one step down the ``r_scale`` grid, none, one step up (index 1: keep)."""
 """Action dimensions appear in this order whatever the order of ``controls``."""
 
 
@@ -99,6 +104,8 @@ def parse_controls(controls: str) -> tuple[str, ...]:
         )
     if "kappa" in names and "blocks" in names:
         raise ValueError("controls: 'blocks' sets the calibration κ already; drop 'kappa'")
+    if "r_scale" in names and "r_step" in names:
+        raise ValueError("controls: 'r_step' moves r_scale already; drop 'r_scale'")
     if len(set(names)) != len(names):
         raise ValueError(f"controls: {controls!r} names a control twice")
     dims = {d for c in names for d in CONTROL_DIMENSIONS[c]}
@@ -239,7 +246,11 @@ class ControlMap:
                 else Dimension("reset", np.asarray(RESET_FRACTIONS), 0, log=False)
             ),
             "r_scale": Dimension("r_scale", np.asarray(R_SCALES), R_SCALES.index(1.0)),
+            "r_step": Dimension("r_step", np.asarray(R_STEPS), 1, log=False),
         }
+        # r_step: each episode's level on the r_scale grid, moved by the actions
+        self.r_nominal = R_SCALES.index(1.0)
+        self.r_level = np.full(n, self.r_nominal, dtype=np.int64)
         self.dims = tuple(grids[d] for d in self.names)
         sizes = [d.grid.size for d in self.dims]
         self.space: spaces.Space[Any]
@@ -281,6 +292,8 @@ class ControlMap:
             if d.log:
                 lo, hi = np.log(d.grid[0]), np.log(d.grid[-1])
                 out[:, j] = np.exp(lo + (u[:, j] + 1.0) / 2.0 * (hi - lo))
+            elif d.name == "r_step":  # thirds: down, keep, up
+                out[:, j] = np.where(u[:, j] < -1 / 3, -1.0, np.where(u[:, j] > 1 / 3, 1.0, 0.0))
             else:  # reset: none below 0, then linear up to the largest size
                 out[:, j] = d.grid[-1] * np.maximum(0.0, u[:, j])
                 if d.grid[0] == VETO:  # a residual's: the lowest quarter vetoes the rule's
@@ -300,13 +313,23 @@ class ControlMap:
             kappa = v.get("kappa", np.full(n, self.kappa_nominal))
             reset = v.get("reset", np.zeros(n))
         ones = np.ones(n)
+        r_scale = v.get("r_scale", ones)
+        if "r_step" in v:  # persistent: the episode's level moves by the step
+            self.r_level = np.clip(
+                self.r_level + v["r_step"].astype(np.int64), 0, len(R_SCALES) - 1
+            )
+            r_scale = np.asarray(R_SCALES)[self.r_level]
         return Moves(
             kappa=np.broadcast_to(kappa, (n,)).astype(float),
             q_att=np.broadcast_to(v.get("q_att", ones), (n,)).astype(float),
             q_bias=np.broadcast_to(v.get("q_bias", ones), (n,)).astype(float),
-            r_scale=np.broadcast_to(v.get("r_scale", ones), (n,)).astype(float),
+            r_scale=np.broadcast_to(r_scale, (n,)).astype(float),
             reset=np.broadcast_to(reset, (n,)).astype(float),
         )
+
+    def restart(self, rows: np.ndarray) -> None:
+        """Episodes ``rows`` start anew: their ``r_step`` level back to the nominal r."""
+        self.r_level[rows] = self.r_nominal
 
     def kappa_position(self, kappa: np.ndarray) -> np.ndarray:
         """Where κ lies on the action set's log range, 0 … 1 (the observation's κ entry)."""
@@ -324,9 +347,12 @@ class ControlMap:
             vetoed = (moves.reset == 0.0) & (base.reset > 0.0)
             added = np.sqrt(np.maximum(0.0, moves.reset**2 - base.reset**2))
             reset = np.where(vetoed, VETO, added)
+        # r_step: the step from the episode's level toward the level of the moves' r
+        want = np.argmin(np.abs(np.log(moves.r_scale)[:, None] - np.log(R_SCALES)[None]), axis=1)
         by_name = {
             "kappa": kappa, "q_att": moves.q_att, "q_bias": moves.q_bias,
             "reset": reset, "r_scale": moves.r_scale,
+            "r_step": np.sign(want - self.r_level).astype(float),
         }  # fmt: skip
         cols = []
         for d in self.dims:

@@ -411,7 +411,10 @@ class EpisodeDriver:
         return self.core.reset_many(rows, seeds)
 
     def restart_base(self, rows: np.ndarray) -> None:
-        """The residual's base rule back to its start for episodes ``rows`` (no-op without)."""
+        """The residual's base rule and the controls' own state (``r_step``) back to their
+        start for episodes ``rows``."""
+        if self.controls is not None:
+            self.controls.restart(rows)
         if self.controls is None or self.controls.base is None or self.base_moves is None:
             return
         self.controls.base.reset(rows)
