@@ -341,3 +341,18 @@ def test_r_step_moves_a_persistent_level_within_the_grid() -> None:
     np.testing.assert_array_equal(cmap.actions_of(wanted)[:, 1], [2, 1])
     with pytest.raises(ValueError, match="r_step"):
         parse_controls("r_scale+r_step")
+
+
+def test_kappa_step_moves_the_residual_factor_level() -> None:
+    """kappa_step on a residual: the factor on the rule's κ moves one grid step per action and
+    holds; without a base it moves along the action set from the nominal κ."""
+    cfg = load_scenario("thermal_snap", SHORT)
+    base = Moves.nominal(1, 2.0)
+    cmap = ControlMap(cfg, "kappa_step+r_step", "discrete", base="glr", n=1)
+    kappas = [cmap.moves(np.array([[a, 1]]), 1, base).kappa[0] for a in (0, 1, 0, 2)]
+    np.testing.assert_allclose(kappas, [2.0 * 10**-0.5, 2.0 * 10**-0.5, 0.2, 2.0 * 10**-0.5])
+    plain = ControlMap(cfg, "kappa_step", "discrete", n=1)
+    assert plain.space == gym.spaces.Discrete(3)
+    np.testing.assert_allclose(plain.moves(np.array([2]), 1).kappa, 10**0.4)
+    with pytest.raises(ValueError, match="kappa_step"):
+        parse_controls("kappa+kappa_step")

@@ -18,6 +18,7 @@ Control      Dimensions              Values (discrete: an index; continuous: [�
                                      the assumed ADS attitude σ), log scale
 ``r_step``   Δr                      one step down the r grid, keep, one step up (persistent:
                                      the episode's r moves; continuous: thirds of [−1, 1])
+``kappa_step`` Δκ                    the same for κ (on a residual: for its factor)
 ===========  ======================  ==========================================================
 
 ``blocks`` holds the calibration κ, so it does not combine with ``kappa``. Action space:
@@ -73,11 +74,15 @@ CONTROL_DIMENSIONS = {
     "reset": ("reset",),
     "r_scale": ("r_scale",),
     "r_step": ("r_step",),
+    "kappa_step": ("kappa_step",),
 }
 """The dimensions each control adds, in action order."""
-DIMENSION_ORDER = ("kappa", "q_att", "q_bias", "reset", "r_scale", "r_step")
+DIMENSION_ORDER = ("kappa", "kappa_step", "q_att", "q_bias", "reset", "r_scale", "r_step")
 R_STEPS = (-1.0, 0.0, 1.0)
-"""``r_step``: one step down the ``r_scale`` grid, none, one step up (index 1: keep)."""
+"""``r_step`` and ``kappa_step``: one step down their grid, none, one step up (index 1:
+keep)."""
+STEPPED = {"r_step": "r_scale", "kappa_step": "kappa"}
+"""The persistent controls and the move each one steps."""
 """Action dimensions appear in this order whatever the order of ``controls``."""
 
 
@@ -106,6 +111,8 @@ def parse_controls(controls: str) -> tuple[str, ...]:
         raise ValueError("controls: 'blocks' sets the calibration κ already; drop 'kappa'")
     if "r_scale" in names and "r_step" in names:
         raise ValueError("controls: 'r_step' moves r_scale already; drop 'r_scale'")
+    if "kappa_step" in names and ("kappa" in names or "blocks" in names):
+        raise ValueError("controls: 'kappa_step' moves κ already; drop 'kappa' and 'blocks'")
     if len(set(names)) != len(names):
         raise ValueError(f"controls: {controls!r} names a control twice")
     dims = {d for c in names for d in CONTROL_DIMENSIONS[c]}
@@ -247,10 +254,13 @@ class ControlMap:
             ),
             "r_scale": Dimension("r_scale", np.asarray(R_SCALES), R_SCALES.index(1.0)),
             "r_step": Dimension("r_step", np.asarray(R_STEPS), 1, log=False),
+            "kappa_step": Dimension("kappa_step", np.asarray(R_STEPS), 1, log=False),
         }
-        # r_step: each episode's level on the r_scale grid, moved by the actions
+        # r_step, kappa_step: each episode's level on the r_scale (κ) grid, moved by the actions
         self.r_nominal = R_SCALES.index(1.0)
         self.r_level = np.full(n, self.r_nominal, dtype=np.int64)
+        self.k_grid, self.k_nominal = kappa_dim.grid, kappa_dim.neutral
+        self.k_level = np.full(n, self.k_nominal, dtype=np.int64)
         self.dims = tuple(grids[d] for d in self.names)
         sizes = [d.grid.size for d in self.dims]
         self.space: spaces.Space[Any]
@@ -292,7 +302,7 @@ class ControlMap:
             if d.log:
                 lo, hi = np.log(d.grid[0]), np.log(d.grid[-1])
                 out[:, j] = np.exp(lo + (u[:, j] + 1.0) / 2.0 * (hi - lo))
-            elif d.name == "r_step":  # thirds: down, keep, up
+            elif d.name in STEPPED:  # thirds: down, keep, up
                 out[:, j] = np.where(u[:, j] < -1 / 3, -1.0, np.where(u[:, j] > 1 / 3, 1.0, 0.0))
             else:  # reset: none below 0, then linear up to the largest size
                 out[:, j] = d.grid[-1] * np.maximum(0.0, u[:, j])
@@ -303,6 +313,10 @@ class ControlMap:
     def moves(self, actions: Any, n: int, base: Moves | None = None) -> Moves:
         """The moves of N actions, on top of the base rule's decision ``base`` (residual)."""
         v = dict(zip(self.names, self.values(actions, n).T, strict=True))
+        if "kappa_step" in v:  # persistent: the episode's κ level moves by the step
+            top = self.k_grid.size - 1
+            self.k_level = np.clip(self.k_level + v["kappa_step"].astype(np.int64), 0, top)
+            v["kappa"] = self.k_grid[self.k_level]
         if self.base is not None:
             assert base is not None
             kappa = base.kappa * v.get("kappa", 1.0)
@@ -328,8 +342,10 @@ class ControlMap:
         )
 
     def restart(self, rows: np.ndarray) -> None:
-        """Episodes ``rows`` start anew: their ``r_step`` level back to the nominal r."""
+        """Episodes ``rows`` start anew: their ``r_step`` and ``kappa_step`` levels back to
+        the nominal."""
         self.r_level[rows] = self.r_nominal
+        self.k_level[rows] = self.k_nominal
 
     def kappa_position(self, kappa: np.ndarray) -> np.ndarray:
         """Where κ lies on the action set's log range, 0 … 1 (the observation's κ entry)."""
@@ -353,6 +369,10 @@ class ControlMap:
             "kappa": kappa, "q_att": moves.q_att, "q_bias": moves.q_bias,
             "reset": reset, "r_scale": moves.r_scale,
             "r_step": np.sign(want - self.r_level).astype(float),
+            "kappa_step": np.sign(
+                np.argmin(np.abs(np.log(kappa)[:, None] - np.log(self.k_grid)[None]), axis=1)
+                - self.k_level
+            ).astype(float),
         }  # fmt: skip
         cols = []
         for d in self.dims:
