@@ -17,6 +17,7 @@
     hyperparams: {}            # keyword arguments of the SB3 algorithm
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
     reward_scale: 1.0          # SB3: the learner sees reward × this (evaluations do not)
+    reward_clip: null          # SB3: … clipped to ±this after scaling (null: not clipped)
     frame_stack: 1             # SB3: the policy sees its last k observations (VecFrameStack)
     env_kwargs: {}             # keywords of the environment (ENVIRONMENTS[env].options)
     imitation:                 # SB3 actor-critic agents: DAgger from the env's expert first
@@ -123,6 +124,8 @@ class TrainConfig(StrictModel):
     tabular: dict[str, Any] = Field(default_factory=dict)
     torch_threads: Annotated[int, Field(ge=1)] = 1  # 2-core machines: the env wants the other
     reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # SB3 agents learn from reward × this
+    # SB3: and then clipped to ±this (heavy-tailed rewards); evaluations see the reward as is
+    reward_clip: Annotated[float, Field(gt=0.0)] | None = None
     frame_stack: Annotated[int, Field(ge=1)] = 1  # SB3: the policy sees the last k observations
     env_kwargs: dict[str, Any] = Field(default_factory=dict)  # ENVIRONMENTS[env].options
     imitation: ImitationConfig | None = None  # DAgger from the env's expert before RL

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
     VecEnv,
@@ -81,17 +82,23 @@ def monitored(env: VecEnv) -> VecMonitor:
 
 
 class ScaledReward(VecEnvWrapper):
-    """Rewards times a constant for the learner (``reward_scale``); the monitor beneath and the
-    evaluations see the reward as defined. A fixed factor keeps training deterministic and
-    resumable, unlike running reward normalisation."""
+    """Rewards times a constant for the learner (``reward_scale``), then clipped to
+    ``±clip`` (``reward_clip``, if set); the monitor beneath and the evaluations see the reward
+    as defined. A fixed factor and bound keep training deterministic and resumable, unlike
+    running reward normalisation. The bound is for heavy-tailed rewards: one episode whose
+    relative reward is −60 otherwise decides a whole batch's normalised advantages."""
 
-    def __init__(self, venv: VecEnv, scale: float) -> None:
+    def __init__(self, venv: VecEnv, scale: float, clip: float | None = None) -> None:
         super().__init__(venv)
         self.scale = scale
+        self.clip = clip
 
     def reset(self) -> Any:
         return self.venv.reset()
 
     def step_wait(self) -> Any:
         obs, reward, done, infos = self.venv.step_wait()
-        return obs, reward * self.scale, done, infos
+        reward = reward * self.scale
+        if self.clip is not None:
+            reward = np.clip(reward, -self.clip, self.clip)
+        return obs, reward, done, infos

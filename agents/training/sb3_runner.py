@@ -248,8 +248,8 @@ def run_sb3(plan: TrainPlan, progress: bool) -> Path:
     if plan.checkpoint is not None:  # new episodes, drawn reproducibly from the progress made
         seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, tabular=False))
     env: VecEnv = monitored(make_vec_env(cfg, cfg.n_envs, seed))
-    if cfg.reward_scale != 1.0:
-        env = ScaledReward(env, cfg.reward_scale)
+    if cfg.reward_scale != 1.0 or cfg.reward_clip is not None:
+        env = ScaledReward(env, cfg.reward_scale, cfg.reward_clip)
     model = _build(plan, algo, env, seed)
     start = int(model.num_timesteps)
     resumed = plan.checkpoint is not None
