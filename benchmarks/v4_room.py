@@ -47,7 +47,9 @@ def stage_means(folder: Path, label: str) -> str:
     return ""
 
 
-def table(study: Path, policies: list[str]) -> list[str]:
+def table(study: Path, policies: list[str], room: Path | None = None) -> list[str]:
+    """The Markdown lines; ``room``: another families study on the same trials (seed, trials)
+    whose ``hindsight-moves`` column is used where ``study`` has none."""
     info = read_manifest(study, "study")
     seed = int(info["seed"])
     lines = [
@@ -63,6 +65,11 @@ def table(study: Path, policies: list[str]) -> list[str]:
             continue
         boot = load_bench(folder).config.run.bootstrap
         rows = read_trials_csv(folder)
+        other = None if room is None else room / case["folder"]
+        if other is not None and (other / "trials.csv").is_file():
+            for m, v in read_trials_csv(other).items():
+                if m.startswith("hindsight-moves") and m not in rows:
+                    rows[m] = v  # the same trials: the study's seed and trial count
         j = METRIC_COLUMNS.index(STATE_SETTLED)
         values = {m: v[:, j] for m, v in rows.items()}
         moves = next((m for m in values if m.startswith("hindsight-moves")), None)
@@ -81,7 +88,7 @@ def table(study: Path, policies: list[str]) -> list[str]:
         if moves is not None and moves in versus:
             v = versus[moves]
             cells.append(f"{v.ratio:.3f} / {v.median:.3f} {WORDS[v.verdict]}")
-            cells.append(stage_means(folder, moves))
+            cells.append(stage_means(folder if other is None else other, moves))
         else:
             cells += ["–", "–"]
         for p in policies:
@@ -103,9 +110,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("study", type=Path, help="a qkf study families output folder")
     ap.add_argument("--policies", default="", help="policy labels, comma-separated")
+    ap.add_argument("--room", type=Path, help="a study with hindsight-moves on the same trials")
     args = ap.parse_args()
     policies = [p for p in args.policies.split(",") if p]
-    print("\n".join(table(args.study, policies)))
+    print("\n".join(table(args.study, policies, args.room)))
 
 
 if __name__ == "__main__":

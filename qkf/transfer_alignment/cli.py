@@ -111,7 +111,8 @@ def bench_cmd(
             "imm-tuned-mixed, sage-husa-tuned-mixed, covariance-matching-tuned-mixed, "
             "fading-tuned-mixed, alarm-burst-tuned-mixed, glr-tuned-mixed, "
             "nis-rule-tuned-mixed (tuned on the training mixture); policy:PATH (a saved "
-            "agent); package.module:function (your own); LABEL=SPEC."
+            "agent); hindsight-moves:CONTROLS (per-trial best schedule of v4's moves); "
+            "package.module:function (your own); LABEL=SPEC."
         ),
     ] = None,
     trials: Annotated[
