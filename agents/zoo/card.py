@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.config import TrainConfig
 from agents.zoo.entry import ZooEntry
 from agents.zoo.summary import LEVEL, read_summary
 from envs import ENVIRONMENTS
@@ -31,7 +32,7 @@ def _training_lines(entry: ZooEntry) -> list[str]:
         "",
         f"- Command: `qkf zoo train {entry.name}` (each seed: `qkf train {entry.spec.train} "
         f"--seed S --out results/zoo/{entry.name}/seed_S`); deterministic by seed.",
-        f"- Agent: {cfg.agent}, {cfg.action_type} κ actions, environment `{cfg.env}`"
+        f"- Agent: {cfg.agent}, {_actions(cfg)}, environment `{cfg.env}`"
         + (f" (observation `{obs}`)" if obs else "")
         + f", decision period {cfg.period_s:g} s, {cfg.n_envs} parallel episodes.",
         f"- Scenario: `{cfg.scenario}`; training episodes from environment seeds "
@@ -243,3 +244,14 @@ def write_card(entry: ZooEntry, folder: Path | None = None) -> Path:
     path = folder / "card.md"
     atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
     return path
+
+
+def _actions(cfg: TrainConfig) -> str:
+    """What the agent's actions are: κ, or the moves of v4's controls (on a residual base)."""
+    controls = cfg.env_kwargs.get("controls")
+    if controls is None:
+        return f"{cfg.action_type} κ actions"
+    base = cfg.env_kwargs.get("base")
+    return f"{cfg.action_type} actions of the controls `{controls}`" + (
+        f" correcting the rule `{base}`" if base else ""
+    )
