@@ -37,7 +37,7 @@ from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import MethodOutput, decision_steps, new_filter
 from qkf.transfer_alignment.methods.hindsight import hindsight
 from qkf.transfer_alignment.methods.moves_schedule import MoveSchedule, run_moves
-from qkf.transfer_alignment.methods.schedule_search import _Scorer
+from qkf.transfer_alignment.methods.schedule_search import _Scorer, drop_rows
 from qkf.transfer_alignment.moves import BLOCK_SCALES, R_SCALES, RESET_FRACTIONS, apply_moves
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -118,14 +118,9 @@ class _Runner:
             if bound is not None and q1 < self.n_periods:
                 over = total[live] >= bound[live]
                 if over.any():
-                    total[live[over]] = np.inf
-                    keep = np.flatnonzero(~over)
-                    live = live[keep]
+                    kf, live = drop_rows(kf, total, live, over)
                     if live.size == 0:
                         break
-                    rest = TransferAlignmentKF(kf.params, live.size)
-                    rest.load_trial(slice(None), kf, keep)  # type: ignore[arg-type]
-                    kf = rest
         if live.size:
             total[live[kf.diverged]] = np.nan
         return total

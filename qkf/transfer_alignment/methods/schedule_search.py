@@ -277,15 +277,10 @@ class _Search:
                 self.screened += int((behind & ~over).sum())
                 over |= behind
             if over.any():
-                total[live[over]] = np.inf
                 self.stopped += int(over.sum())
-                keep = np.flatnonzero(~over)
-                live = live[keep]
+                kf, live = drop_rows(kf, total, live, over)
                 if live.size == 0:
                     break
-                rest = TransferAlignmentKF(carry.params, live.size)
-                rest.load_trial(slice(None), kf, keep)  # type: ignore[arg-type]
-                kf = rest
         if live.size:
             total[live[kf.diverged]] = np.nan
         self.runs += rows
@@ -384,6 +379,20 @@ class _Search:
                     changed[i] = True
             prefix += self.advance(carry, choice, k0, k1)
         return changed
+
+
+def drop_rows(
+    kf: TransferAlignmentKF, total: np.ndarray, live: np.ndarray, over: np.ndarray
+) -> tuple[TransferAlignmentKF, np.ndarray]:
+    """Stop the filter rows ``over`` (of the ``live`` ones) of a rollout: their ``total`` is
+    ``inf`` (they cannot win), and the filter goes on with the others only. Returns the
+    smaller filter and the rows still live."""
+    total[live[over]] = np.inf
+    keep = np.flatnonzero(~over)
+    rest = TransferAlignmentKF(kf.params, max(keep.size, 1))
+    if keep.size:
+        rest.load_trial(slice(None), kf, keep)  # type: ignore[arg-type]
+    return rest, live[keep]
 
 
 def _lowest_per_group(groups: np.ndarray, values: np.ndarray, keep: int) -> np.ndarray:
