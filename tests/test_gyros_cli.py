@@ -201,3 +201,26 @@ def test_trials_option_is_checked(tmp_path: Path) -> None:
         app, ["gyros", "bench", "five_gyros", "--trials", "0", "--out", str(tmp_path / "b")]
     )
     assert res.exit_code == 2 and "--trials" in res.output
+
+
+def test_run_summary_says_when_a_detector_fires_before_the_fault(tmp_path: Path) -> None:
+    """The detectors' table counts each detector's alarms before the injected fault and its
+    delay after it, as fdi.csv shows them, and remarks on a detector that fired early."""
+    out = tmp_path / "run"
+    res = runner.invoke(
+        app, ["gyros", "run", "five_gyros_y_misalignment", "--out", str(out), *SHORT]
+    )
+    assert res.exit_code == 0, res.output
+    t_fault = load_config("five_gyros_y_misalignment").scenario.faults[0].t_s
+    fdi = _rows(out / "fdi.csv")
+    summary = (out / "summary.md").read_text()
+    for name, column in (("three-cross", "isolated_threecross"), ("GLT", "isolated_glt")):
+        flagged = [float(r["t_s"]) for r in fdi if r[column]]
+        before = [t for t in flagged if t < t_fault]
+        after = [t for t in flagged if t >= t_fault]
+        row = next(line for line in summary.splitlines() if line.startswith(f"| {name}"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert int(cells[4]) == len(before)
+        assert float(cells[5]) == pytest.approx(after[0] - t_fault, abs=1e-6)
+        assert (f"- {name}" in summary and "before the fault" in summary) == bool(before)
+    assert "false alarms" in summary  # GLT fires at 34.1 s on this seed, the fault is at 60 s

@@ -188,13 +188,31 @@ def _fmt(v: float) -> str:
     return "—" if not np.isfinite(v) else f"{v:.6g}"
 
 
+def fault_time(res: RunResult) -> float | None:
+    """When the simulated run's first fault (or its drawn onset) happens, s; ``None`` for
+    recorded readings or a run without a fault (nothing to be early or late against)."""
+    if res.data.coeffs is None:
+        return None
+    times = [f.t_s for f in res.cfg.scenario.faults]
+    onset = getattr(res.data, "onset_s", None)
+    if onset is not None and np.isfinite(onset[0]) and onset[0] <= res.data.t[-1]:
+        times.append(float(onset[0]))
+    return min(times) if times else None
+
+
 def _detector_lines(res: RunResult) -> list[str]:
+    """The detectors' table; with a known fault time, also each detector's alarms before the
+    fault (false alarms) and its delay after it, and a remark for each that fired early."""
     ids = res.unit.ids
     t = res.data.t
+    t_fault = fault_time(res)
+    timed = t_fault is not None
     out = [
-        "| detector | epochs flagged | first flagged (s) | isolated most often |",
-        "|---|---|---|---|",
+        "| detector | epochs flagged | first flagged (s) | isolated most often |"
+        + (" flagged before the fault | delay after the fault (s) |" if timed else ""),
+        "|---|---|---|---|" + ("---|---|" if timed else ""),
     ]
+    remarks = []
     for name, iso in (
         ("three-cross", res.fdi.isolated_threecross[0]),
         (f"GLT (window {res.detectors.glt.window})", res.fdi.glt.isolated[0]),
@@ -202,8 +220,21 @@ def _detector_lines(res: RunResult) -> list[str]:
         hit = iso != NO_GYRO
         first = f"{t[np.argmax(hit)]:.6g}" if hit.any() else "—"
         common = ids[int(np.bincount(iso[hit], minlength=len(ids)).argmax())] if hit.any() else "—"
-        out.append(f"| {name} | {int(hit.sum())} of {iso.size} | {first} | {common} |")
-    return out
+        row = f"| {name} | {int(hit.sum())} of {iso.size} | {first} | {common} |"
+        if t_fault is not None:
+            before = hit & (t < t_fault)  # alarms while every gyro was healthy
+            after = hit & (t >= t_fault)
+            delay = f"{t[np.argmax(after)] - t_fault:.6g}" if after.any() else "missed"
+            row += f" {int(before.sum())} | {delay} |"
+            if before.any():
+                remarks.append(
+                    f"- {name} fired {int(before.sum())} epoch"
+                    f"{'s' if before.sum() > 1 else ''} before the fault at "
+                    f"{t_fault:g} s (first at {t[np.argmax(before)]:.6g} s): false alarms, so "
+                    "its first alarm is not the fault's detection."
+                )
+        out.append(row)
+    return out + (["", *remarks] if remarks else [])
 
 
 def run_summary_md(res: RunResult, source: str) -> str:
