@@ -418,9 +418,7 @@ class EpisodeDriver:
         if self.controls is None or self.controls.base is None or self.base_moves is None:
             return
         self.controls.base.reset(rows)
-        start = self.controls.base.start()
-        for mine, first in zip(self.base_moves.fields(), start.fields(), strict=True):
-            mine[rows] = first[rows]
+        self.base_moves.put(rows, self.controls.base.start())
 
     def expert_actions(self) -> np.ndarray:
         """The expert's actions (``expert=``) for every episode's next period: (N,) for a

@@ -43,9 +43,7 @@ class RuleExpert:
         if self.rule is None or self.moves is None:
             return
         self.rule.reset(rows)
-        start = self.rule.start()
-        for mine, first in zip(self.moves.fields(), start.fields(), strict=True):
-            mine[rows] = first[rows]
+        self.moves.put(rows, self.rule.start())
 
     def update(self, out: object) -> None:
         """Advance the rule by the period just run (a :class:`StepOutput`)."""

@@ -59,6 +59,11 @@ class Moves:
     def fields(self) -> tuple[np.ndarray, ...]:
         return (self.kappa, self.q_att, self.q_bias, self.r_scale, self.reset)
 
+    def put(self, rows: np.ndarray, other: Moves) -> None:
+        """Overwrite trials ``rows`` with ``other``'s decisions for the same trials, in place."""
+        for mine, theirs in zip(self.fields(), other.fields(), strict=True):
+            mine[rows] = theirs[rows]
+
     def check(self) -> None:
         """``ValueError`` unless every factor is finite and positive and every reset finite and
         non-negative."""
