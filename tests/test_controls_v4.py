@@ -356,3 +356,12 @@ def test_kappa_step_moves_the_residual_factor_level() -> None:
     np.testing.assert_allclose(plain.moves(np.array([2]), 1).kappa, 10**0.4)
     with pytest.raises(ValueError, match="kappa_step"):
         parse_controls("kappa+kappa_step")
+
+
+def test_hindsight_moves_searches_what_a_stepped_control_can_reach() -> None:
+    """r_step and kappa_step move r and κ: their hindsight searches those moves."""
+    from qkf.transfer_alignment.methods.hindsight_moves import controlled_moves
+
+    assert controlled_moves("kappa_step+reset+r_step") == ("kappa", "reset", "r_scale")
+    with pytest.raises(ValueError, match="unknown control"):
+        controlled_moves("r_stp")

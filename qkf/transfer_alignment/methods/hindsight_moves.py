@@ -39,6 +39,7 @@ from qkf.transfer_alignment.methods.hindsight import hindsight
 from qkf.transfer_alignment.methods.moves_schedule import MoveSchedule, run_moves
 from qkf.transfer_alignment.methods.schedule_search import _Scorer, drop_rows
 from qkf.transfer_alignment.moves import BLOCK_SCALES, R_SCALES, RESET_FRACTIONS, apply_moves
+from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
 
 RESET_EVERY = 3
@@ -50,6 +51,8 @@ CONTROL_MOVES = {
     "blocks": ("q_att", "q_bias", "kappa"),
     "reset": ("reset",),
     "r_scale": ("r_scale",),
+    "r_step": ("r_scale",),  # a persistent r: every constant r is reachable by steps
+    "kappa_step": ("kappa",),
 }
 """The moves each control of the environments governs (as ``envs`` declares them)."""
 FACTOR_GRIDS = {"r_scale": R_SCALES, "q_att": BLOCK_SCALES, "q_bias": BLOCK_SCALES}
@@ -72,6 +75,7 @@ class _Runner:
         self.scorer = _Scorer(cfg, data, cfg.adaptive.tuned.metric)
         self.n_periods = -(-data.n_epochs // period)
         self.trial_epochs = 0
+        self.params = FilterParams.from_config(cfg)
 
     def run(
         self,
@@ -86,7 +90,7 @@ class _Runner:
         row whose ``S`` reaches ``bound[r]`` is stopped (``inf``): ``S`` only grows."""
         d, p = self.data, self.period
         rows = trials.size
-        kf = TransferAlignmentKF(new_filter(self.cfg, d).params, rows)
+        kf = TransferAlignmentKF(self.params, rows)
         if carry is None:
             kf.initialize(d.ads_q[trials, 0])
         else:
