@@ -189,7 +189,8 @@ def test_hindsight_episode_is_the_environment_episode() -> None:
     env = RedundantGyroCalibrationEnv(cfg, observation="v1")
     _, info = env.reset(seed=5_000_002)
     assert info["onset_s"] == ep.inputs.onset_s
-    assert np.array_equal(env._z, ep.inputs.z) and np.array_equal(env._truth, ep.inputs.truth)
+    e = env.episodes
+    assert np.array_equal(e.z[0], ep.inputs.z) and np.array_equal(e.truth[0], ep.inputs.truth)
 
 
 @pytest.mark.parametrize("seed", [5_000_003, 5_000_004])

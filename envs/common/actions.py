@@ -49,6 +49,18 @@ class ActionMap:
         lo, hi = self.log_kappa[0], self.log_kappa[-1]
         return float(10.0 ** (lo + u * (hi - lo))), u
 
+    def many(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """κ and position (N,) each of N actions; an integer array of discrete actions is
+        mapped in one go (a batched environment's common case), anything else one by one."""
+        a = np.asarray(actions)
+        if self.action_type == "discrete" and a.ndim == 1 and np.issubdtype(a.dtype, np.integer):
+            if a.size and (a.min() < 0 or a.max() >= self.kappas.size):
+                bad = a[(a < 0) | (a >= self.kappas.size)][0]
+                raise ValueError(f"action {int(bad)} outside 0..{self.kappas.size - 1}")
+            return self.kappas[a].astype(float), a / (self.kappas.size - 1)
+        mapped = [self(x) for x in actions]
+        return np.array([m[0] for m in mapped]), np.array([m[1] for m in mapped])
+
     @staticmethod
     def _integral_index(action: Any) -> int:
         """A discrete action given as an array or a float: its integer value, or

@@ -1,12 +1,16 @@
-"""The redundant-gyro environments ``qkf/RedundantGyroCalibration-v0`` and ``-v1``
+"""The redundant-gyro environments ``qkf/RedundantGyroCalibration-v0``, ``-v1`` and ``-v2``
 (docs/redundant_gyros.md, "Environment"): the agent picks the process-noise factor κ of the UKF
 that calibrates one gyro of a redundant skewed unit (:mod:`qkf.redundant_gyros`) every decision
 period. v1 runs on ``five_gyros_onset_drift`` by default (an onset drawn per episode, drifting
-coefficients) and its observation has no elapsed-time entry; v0 stays as it was.
+coefficients) and its observation has no elapsed-time entry; v2 also leaves out the likelihood
+gain over a κ = 1 copy (so no copy runs) and rewards with ``oracle`` by default; v0 stays as
+it was.
 
-:mod:`.env` is the single environment, :mod:`.rewards` its reward registry. It has no batched
-vector environment: ``gym.make_vec`` and ``qkf train`` run one environment per episode.
-Importing it registers the id, with Gymnasium and in :data:`envs.ENVIRONMENTS`.
+:mod:`.episodes` steps N episodes through the compiled UKF; :mod:`.env` is the single
+environment (one episode), :mod:`.vector` the batched Gymnasium ``VectorEnv`` (what
+``gym.make_vec`` returns), :mod:`.sb3` its Stable-Baselines3 twin (what ``qkf train`` uses);
+:mod:`.observations` and :mod:`.rewards` are the registries. Importing it registers the ids,
+with Gymnasium and in :data:`envs.ENVIRONMENTS`.
 """
 
 from collections.abc import Sequence
@@ -22,6 +26,9 @@ from qkf.redundant_gyros.scenario import epochs
 
 GYRO_ENV_ID = "qkf/RedundantGyroCalibration-v0"
 GYRO_ENV_ID_V1 = "qkf/RedundantGyroCalibration-v1"
+GYRO_ENV_ID_V2 = "qkf/RedundantGyroCalibration-v2"
+VECTOR_ENTRY_POINT = "envs.redundant_gyros.vector:BatchedGyroCalibrationEnv"
+SB3_VEC_ENV = "envs.redundant_gyros.sb3:BatchedGyroSB3Env"
 
 
 def _has_a_gyro_to_calibrate(cfg: GyrosConfig) -> None:
@@ -44,6 +51,9 @@ register_environment(
         rewards=GYRO_REWARDS,
         observation_size=OBS_SIZE,
         check_scenario=check_scenario,
+        observation="v0",
+        vector_entry_point=VECTOR_ENTRY_POINT,
+        sb3_vec_env=SB3_VEC_ENV,
         description="redundant skewed gyros: κ of the calibration UKF of one gyro",
     )
 )
@@ -56,9 +66,28 @@ register_environment(
         observation_size=OBS_SIZES["v1"],
         check_scenario=check_scenario,
         observation="v1",
+        vector_entry_point=VECTOR_ENTRY_POINT,
+        sb3_vec_env=SB3_VEC_ENV,
         description=(
             "redundant skewed gyros, unknown fault onset and drifting coefficients; "
             "no clock in the observation"
+        ),
+    )
+)
+register_environment(
+    Environment(
+        id=GYRO_ENV_ID_V2,
+        entry_point="envs.redundant_gyros.env:RedundantGyroCalibrationEnv",
+        problem="redundant_gyros",
+        rewards=GYRO_REWARDS,
+        observation_size=OBS_SIZES["v2"],
+        check_scenario=check_scenario,
+        observation="v2",
+        vector_entry_point=VECTOR_ENTRY_POINT,
+        sb3_vec_env=SB3_VEC_ENV,
+        description=(
+            "redundant skewed gyros as v1, without the κ = 1 copy's likelihood gain in the "
+            "observation; oracle reward by default"
         ),
     )
 )
@@ -66,6 +95,7 @@ register_environment(
 __all__ = [
     "GYRO_ENV_ID",
     "GYRO_ENV_ID_V1",
+    "GYRO_ENV_ID_V2",
     "GYRO_REWARDS",
     "OBS_SIZE",
     "OBS_SIZES",

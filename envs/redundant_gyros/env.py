@@ -12,16 +12,19 @@ One step is one decision period (``period_s``, default ``environment.period_s``)
 has ``ceil(K / period)`` steps, K the calibrated epochs — fixed by the config
 (``env.unwrapped.episode_steps``).
 
-Versions (``observation``): ``"v0"`` (``qkf/RedundantGyroCalibration-v0``, default scenario
-``five_gyros_s_bias``: a bias step at a known time, constant coefficients otherwise) and
-``"v1"`` (``qkf/RedundantGyroCalibration-v1``, default scenario ``five_gyros_onset_drift``: an
-onset drawn per episode with a step and a random walk of the coefficients; its observation has
-no elapsed-time entry, so a policy reacts to the evidence, not to the clock).
+Versions (``observation``, a name of
+:data:`~envs.redundant_gyros.observations.GYRO_OBSERVATIONS`): ``"v0"``
+(``qkf/RedundantGyroCalibration-v0``, default scenario ``five_gyros_s_bias``: a bias step at a
+known time, constant coefficients otherwise), ``"v1"`` (``qkf/RedundantGyroCalibration-v1``,
+default scenario ``five_gyros_onset_drift``: an onset drawn per episode with a step and a
+random walk of the coefficients; its observation has no elapsed-time entry, so a policy reacts
+to the evidence, not to the clock) and ``"v2"`` (``qkf/RedundantGyroCalibration-v2``, below).
 
 Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``; ``None``: the
 version's default), ``action_type`` (``discrete`` | ``continuous``), ``reward`` (a name of
-:data:`~envs.redundant_gyros.rewards.GYRO_REWARDS`), ``overrides``
-(``--set`` style), ``period_s``, ``observation`` (``"v0"`` | ``"v1"``), ``render_mode``
+:data:`~envs.redundant_gyros.rewards.GYRO_REWARDS`; ``None``: ``likelihood``, or ``oracle``
+for v2), ``overrides``
+(``--set`` style), ``period_s``, ``observation`` (``"v0"`` | ``"v1"`` | ``"v2"``), ``render_mode``
 (``None`` or ``"rgb_array"``, as the transfer-alignment environment: ``render()`` draws the κ
 chosen so far and, over the four calibrated states, the RMS of the UKF's σ and of the true
 error, both over the prior σ₀).
@@ -64,6 +67,15 @@ Obs    Meaning (float32; no truth)                                 Typical scale
 7      κ position in [0, 1] on the action scale                     0 … 1
 =====  ==========================================================  ===========================
 
+Observation ``"v2"`` (7 entries: v1 without the likelihood gain, so no κ = 1 copy of the filter
+runs): ``log10(σ/σ₀)`` of the four states, mean NIS, ``|ω̂_H|``, κ position
+(:mod:`envs.redundant_gyros.observations`).
+
+The filter is the compiled UKF (:mod:`qkf.redundant_gyros.ukf_compiled`, held to filterpy's at
+1e-9 σ₀), stepped by :class:`~envs.redundant_gyros.episodes.GyroEpisodes` with one episode;
+the batched twins over N episodes are :mod:`envs.redundant_gyros.vector` (Gymnasium) and
+:mod:`envs.redundant_gyros.sb3` (Stable-Baselines3), the same episode for the same seed.
+
 Rewards: :mod:`envs.redundant_gyros.rewards` (:data:`GYRO_REWARDS`, entry-point group
 ``qkf.gyro_rewards``). ``info`` carries the true errors at the period's end in display units
 (``errors``: b deg/s, λ, δ_u deg, δ_v deg), ``kappa``, ``t_s``, ``gyro`` and ``diverged`` (and
@@ -74,33 +86,60 @@ filter that fails (non-finite, or a covariance that is not positive definite) en
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 
-from envs.common.actions import ActionMap
-from envs.common.bounds import DIVERGENCE_REWARD, finite_clipped, observation_box
 from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
-from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod
-from qkf.redundant_gyros.config import GyrosConfig, load_config
-from qkf.redundant_gyros.geometry import build_unit
-from qkf.redundant_gyros.pipeline import episode_inputs, fault_target, setup_for
-from qkf.redundant_gyros.scenario import epochs
-from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood
+from envs.redundant_gyros.episodes import GyroEpisodes
+from envs.redundant_gyros.observations import GYRO_OBSERVATIONS
+from qkf.redundant_gyros.config import GyrosConfig
+from qkf.redundant_gyros.ukf import DISPLAY_SCALE
 
-OBS_SIZE = 9
-"""Entries of the v0 observation (table above)."""
-OBS_SIZES = {"v0": OBS_SIZE, "v1": 8}
+OBS_SIZES = {name: GYRO_OBSERVATIONS[name].size for name in GYRO_OBSERVATIONS}
 """Entries of the observation of each version."""
-DEFAULT_SCENARIOS = {"v0": "five_gyros_s_bias", "v1": "five_gyros_onset_drift"}
+OBS_SIZE = OBS_SIZES["v0"]
+"""Entries of the v0 observation (table above)."""
+DEFAULT_SCENARIOS = {
+    "v0": "five_gyros_s_bias",
+    "v1": "five_gyros_onset_drift",
+    "v2": "five_gyros_onset_drift",
+}
 """The scenario of each version when none is given."""
-ELAPSED = 6
-"""Index of the elapsed fraction in the v0 observation (v1 leaves it out)."""
 GYRO_CURVES = ("UKF σ / σ₀", "|error| / σ₀")
 """The curves of the rendered frames: RMS over ``[b, λ, δ_u, δ_v]``, each over its prior sd."""
+
+
+def gyro_trace(episodes: GyroEpisodes, title: str) -> EpisodeTrace:
+    """The (empty) trace of one gyro episode of ``episodes``' config."""
+    kappas = episodes.actions.kappas
+    t = episodes.t
+    return EpisodeTrace(
+        title,
+        GYRO_CURVES,
+        "RMS over the prior σ₀",
+        (float(kappas.min()), float(kappas.max())),
+        (float(t[episodes.target.start]), float(t[-1])),  # the calibrated span
+    )
+
+
+def gyro_curves(episodes: GyroEpisodes, errors: np.ndarray) -> np.ndarray:
+    """Every episode's UKF σ and true error ``errors`` (N, 4, display units) after a step, RMS
+    over the four states of each over its prior sd (N, 2), dimensionless."""
+    p0 = episodes.setup.p0_sd
+    with np.errstate(over="ignore", invalid="ignore"):  # a failed filter: inf/NaN → gaps
+        # |diag| only so that a broken (negative) variance of a failed UKF draws, not warns
+        sd = np.sqrt(np.abs(np.diagonal(episodes.p, axis1=1, axis2=2)))
+        err = errors * DISPLAY_SCALE
+        return np.stack(
+            [
+                np.sqrt(np.mean(np.square(sd / p0), axis=1)),
+                np.sqrt(np.mean(np.square(err / p0), axis=1)),
+            ],
+            axis=1,
+        )
 
 
 class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
@@ -112,145 +151,74 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         self,
         scenario: str | Path | GyrosConfig | None = None,
         action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str = "likelihood",
+        reward: str | None = None,
         overrides: list[str] | None = None,
         period_s: float | None = None,
         render_mode: str | None = None,
-        observation: Literal["v0", "v1"] = "v0",
+        observation: str = "v0",
     ) -> None:
         check_render_mode(render_mode)
-        if reward not in GYRO_REWARDS:
-            raise ValueError(f"unknown reward {reward!r}; known: {', '.join(GYRO_REWARDS)}")
-        if observation not in OBS_SIZES:
-            raise ValueError(f"unknown observation {observation!r}; known: v0, v1")
+        if observation not in GYRO_OBSERVATIONS:
+            known = ", ".join(GYRO_OBSERVATIONS)
+            raise ValueError(f"unknown observation {observation!r}; known: {known}")
         self.observation = observation
         self.obs_size = OBS_SIZES[observation]
         self.render_mode = render_mode
         if scenario is None:
             scenario = DEFAULT_SCENARIOS[observation]
-        self.cfg = (
-            scenario if isinstance(scenario, GyrosConfig) else load_config(scenario, overrides)
+        self.episodes = ep = GyroEpisodes(
+            1, scenario, action_type, reward, overrides, period_s, observation
         )
-        self.reward_name = reward
-        self.reward = GYRO_REWARDS[reward]
-        self.unit = build_unit(self.cfg)
-        sc = self.cfg.scenario
-        self.t = epochs(sc.duration_s, sc.dt_s)
-        self.target = fault_target(self.cfg, self.unit, self.t)
-        self.setup = setup_for(self.cfg, self.unit, self.target)
-        period = self.cfg.environment.period_s if period_s is None else period_s
-        if not (math.isfinite(period) and period > 0.0):
-            raise ValueError(f"period_s must be positive, got {period!r}")
-        self.period = max(1, round(period / sc.dt_s))
-        self.n_steps = self.t.size - self.target.start  # calibrated epochs per episode
-        self.episode_steps = math.ceil(self.n_steps / self.period)
-        kappas = np.asarray(self.cfg.environment.actions.values())
-        self.actions = ActionMap(kappas, action_type)
-        self.action_space = self.actions.space
-        self.observation_space = observation_box(self.obs_size)
-        self._start_pos = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
+        self.cfg, self.unit, self.setup, self.t = ep.cfg, ep.unit, ep.setup, ep.t
+        self.target, self.period, self.n_steps = ep.target, ep.period, ep.n_steps
+        self.episode_steps = ep.episode_steps
+        self.reward = ep.reward
+        self.actions = ep.actions
+        self.action_space = ep.action_space
+        self.observation_space = ep.observation_space
+        self._gyro = self.unit.ids[self.setup.gyro]
         self._started = False
-        self._trace = EpisodeTrace(
-            f"RedundantGyroCalibration (gyro {self.unit.ids[self.setup.gyro]})",
-            GYRO_CURVES,
-            "RMS over the prior σ₀",
-            (float(kappas.min()), float(kappas.max())),
-            (float(self.t[self.target.start]), float(self.t[-1])),  # the calibrated span
-        )
+        self._trace = gyro_trace(ep, f"RedundantGyroCalibration (gyro {self._gyro})")
+
+    def _info(self) -> dict[str, Any]:
+        info: dict[str, Any] = {"gyro": self._gyro}
+        onset = self.episodes.onset(0)
+        if onset is not None:
+            info["onset_s"] = onset
+        return info
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        draw = int(self.np_random.integers(2**63 - 1))
-        ep = episode_inputs(self.cfg, self.unit, self.setup, self.target, self.t, draw)
-        self._z, self._rate, self._truth, self._dt = ep.z, ep.rate, ep.truth, ep.dt
-        self._onset_s = ep.onset_s
-        self._main = CalibrationUKF(self.setup, float(self._dt[0]))
-        self._nominal = CalibrationUKF(self.setup, float(self._dt[0]))
-        self._k = 0
+        self.episodes.rngs[0] = self.np_random
+        obs = self.episodes.reset_envs(np.array([0]))[0]
         self._started = True
         self._trace.clear()
-        obs = np.zeros(self.obs_size, dtype=np.float32)
-        obs[-1] = self._start_pos
-        info: dict[str, Any] = {
-            "kappa": 1.0,
-            "diverged": False,
-            "gyro": self.unit.ids[self.setup.gyro],
-        }
-        if self._onset_s is not None:
-            info["onset_s"] = self._onset_s
-        return obs, info
+        return obs, {"kappa": 1.0, "diverged": False, **self._info()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
         kappa, pos = self.actions(action)
-        main, nominal = self._main, self._nominal
-        nominal.load(main.x, main.P, main.diverged)
-        k0, k1 = self._k, min(self._k + self.period, self.n_steps)
-        nu, var, nu_nom, var_nom = (np.full(k1 - k0, np.nan) for _ in range(4))
-        errors = np.full((k1 - k0, 4), np.nan)
-        cov = np.full((k1 - k0, 4, 4), np.nan)
-        for i, k in enumerate(range(k0, k1)):
-            z, rate, dt = float(self._z[k]), self._rate[k], float(self._dt[k])
-            res = main.step(z, rate, dt, kappa)
-            if not res.ok:
-                break
-            nu[i], var[i] = res.innovation, res.variance
-            errors[i], cov[i] = main.x - self._truth[k], main.P
-            res_nom = nominal.step(z, rate, dt, 1.0)
-            nu_nom[i], var_nom[i] = res_nom.innovation, res_nom.variance
-        self._k = k1
-        diverged = main.diverged
+        out = self.episodes.run(np.array([kappa]), np.array([pos]))
         info: dict[str, Any] = {
             "kappa": kappa,
-            "diverged": diverged,
-            "gyro": self.unit.ids[self.setup.gyro],
-            "t_s": float(self.t[self.target.start + k1 - 1]),
-            "errors": errors[-1] / DISPLAY_SCALE,
+            "diverged": bool(out.terminated[0]),
+            "t_s": float(out.t_s[0]),
+            "errors": out.errors[0],
+            **self._info(),
         }
-        if self._onset_s is not None:
-            info["onset_s"] = self._onset_s
         if self.render_mode is not None:  # record only what render() will draw
-            self._trace.append(info["t_s"], kappa, self._render_values(errors[-1]))
-        obs = np.zeros(self.obs_size, dtype=np.float32)
-        if diverged:
-            obs[-1] = pos
-            return obs, DIVERGENCE_REWARD, True, False, info
-        ll = float(np.sum(log_likelihood(nu, var)))
-        # a κ = 1 copy that fails where the agent's filter does not: no gain either way
-        ll_nom = ll if nominal.diverged else float(np.sum(log_likelihood(nu_nom, var_nom)))
-        steps = k1 - k0
-        period = GyroPeriod(ll - ll_nom, errors, cov, self.setup.p0_sd, steps, float(self._dt[k0]))
-        reward = float(self.reward.fn(period))
-        if not math.isfinite(reward):
-            reward = DIVERGENCE_REWARD
-        sd = np.sqrt(np.diag(main.P))
-        values = [
-            *np.log10(sd / self.setup.p0_sd),
-            float(np.mean(nu**2 / var)),
-            (ll - ll_nom) / steps,
-            k1 / self.n_steps,
-            float(np.linalg.norm(self._rate[k1 - 1])),
-            pos,
-        ]
-        if self.observation != "v0":
-            del values[ELAPSED]
-        obs = finite_clipped(np.asarray(values))
-        return obs, reward, False, k1 >= self.n_steps, info
-
-    def _render_values(self, error: np.ndarray) -> list[float]:
-        """The UKF's σ and the true error ``error`` (4,) at the period's end, RMS over the four
-        states of each over its prior sd (dimensionless)."""
-        p0 = self.setup.p0_sd
-        with np.errstate(over="ignore", invalid="ignore"):  # a failed filter: inf/NaN → gaps
-            # |diag| only so that a broken (negative) variance of a failed UKF draws, not warns
-            sd = np.sqrt(np.abs(np.diag(self._main.P)))
-            return [
-                float(np.sqrt(np.mean(np.square(sd / p0)))),
-                float(np.sqrt(np.mean(np.square(error / p0)))),
-            ]
+            curves = gyro_curves(self.episodes, out.errors)[0]
+            self._trace.append(info["t_s"], kappa, list(curves))
+        return (
+            out.obs[0],
+            float(out.reward[0]),
+            bool(out.terminated[0]),
+            bool(out.truncated[0]),
+            info,
+        )
 
     def render(self) -> np.ndarray | None:
         """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8;

@@ -16,8 +16,18 @@ docs/performance.md, "A fresh compile and the cached code"). Every module of ``q
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
+
+# OpenMP worker threads (numba's "omp" threading layer, GNU libgomp) spin for a while after
+# each parallel region by default. Between two batched filter periods the main thread does the
+# environment's numpy work and draws episodes, and the spinning workers took the second core
+# from it: on 2 cores the batched gyro environment ran 40 % slower and the single
+# transfer-alignment environment 25 % slower (docs/performance.md, "Threads that spin"). libgomp
+# reads the setting when it is loaded, which numba does at its first parallel run, after this
+# import. A value the user set is kept.
+os.environ.setdefault("GOMP_SPINCOUNT", "0")
 
 import llvmlite.binding as ll
 import numba as nb

@@ -21,11 +21,9 @@ strictly better — so the result is never worse than the episode's best constan
 any constant. The incumbent filter is carried from block to block, so a candidate runs from
 its block's start only, and the criterion's sum before it is the incumbent's.
 
-The filter is a compiled copy of :class:`~qkf.redundant_gyros.ukf.CalibrationUKF` (filterpy's
-UKF with Merwe sigma points and an identity process model): predict ``P⁻ = P + κ Δt diag(q²)``,
-sigma points of ``(x, P⁻)``, ``h`` and ``R(x)`` as :mod:`~qkf.redundant_gyros.ukf`, update
-``P − K S Kᵀ``, symmetrised. Its estimates agree with filterpy's to rounding (tested), at about
-a hundredth of the cost, which is what makes the search affordable (about 4·10⁶ filter steps
+The filter is the compiled UKF of :mod:`qkf.redundant_gyros.ukf_compiled` (the environments'
+too). Its estimates agree with filterpy's to rounding (tested), at about a thousandth of the
+cost, which is what makes the search affordable (about 4·10⁶ filter steps
 per 600-s episode).
 """
 
@@ -35,15 +33,12 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
-import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
 from qkf.redundant_gyros.config import GyrosConfig
-from qkf.redundant_gyros.geometry import build_unit
-from qkf.redundant_gyros.pipeline import EpisodeInputs, episode_inputs, fault_target, setup_for
-from qkf.redundant_gyros.scenario import epochs
+from qkf.redundant_gyros.episodes import EpisodeInputs, EpisodeSampler
 from qkf.redundant_gyros.ukf import DIM, UkfSetup
+from qkf.redundant_gyros.ukf_compiled import CompiledSetup, run_span, ukf_step
 
 SETTLED_S = 100.0
 """Default start of the judged window, s after the calibration starts: the UKF has converged
@@ -80,13 +75,10 @@ class Episode:
 
 def episode(cfg: GyrosConfig, seed: int, settled_s: float = SETTLED_S) -> Episode:
     """The episode of ``env.reset(seed=seed)`` of a gyro environment on ``cfg``."""
-    unit = build_unit(cfg)
-    sc = cfg.scenario
-    t = epochs(sc.duration_s, sc.dt_s)
-    target = fault_target(cfg, unit, t)
-    setup = setup_for(cfg, unit, target)
-    inputs = episode_inputs(cfg, unit, setup, target, t, env_draw(seed))
-    period = max(1, round(cfg.environment.period_s / sc.dt_s))
+    sampler = EpisodeSampler(cfg)
+    setup = sampler.setup
+    inputs = sampler.draw(env_draw(seed))
+    period = max(1, round(cfg.environment.period_s / cfg.scenario.dt_s))
     settled = int(np.searchsorted(np.cumsum(inputs.dt) - inputs.dt[0], settled_s - 1e-9))
     if settled >= inputs.z.size:
         raise ValueError(f"settled_s = {settled_s:g} s leaves no judged epoch in the episode")
@@ -94,210 +86,19 @@ def episode(cfg: GyrosConfig, seed: int, settled_s: float = SETTLED_S) -> Episod
     return Episode(inputs, setup, kappas, period, settled, seed)
 
 
-# --- the compiled filter --------------------------------------------------------------------
-
-
-@nb.njit(cache=True)
-def _cholesky(a: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover - compiled
-    """Lower Cholesky factor of the 4 × 4 ``a`` into ``out``; False if not positive definite."""
-    n = a.shape[0]
-    for j in range(n):
-        s = a[j, j]
-        for m in range(j):
-            s -= out[j, m] * out[j, m]
-        if not s > 0.0:
-            return False
-        d = np.sqrt(s)
-        out[j, j] = d
-        for i in range(j + 1, n):
-            s = a[i, j]
-            for m in range(j):
-                s -= out[i, m] * out[j, m]
-            out[i, j] = s / d
-        for i in range(j):
-            out[i, j] = 0.0
-    return True
-
-
-@nb.njit(cache=True)
-def _h(
-    s: np.ndarray, w: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray
-) -> float:  # pragma: no cover
-    """``(1 − λ) (w − δ_u u − δ_v v)ᵀ ω̂ − b`` of state ``s``, deg/s."""
-    acc = 0.0
-    for m in range(3):
-        acc += (w[m] - s[2] * u[m] - s[3] * v[m]) * r[m]
-    return (1.0 - s[1]) * acc - s[0]
-
-
-@nb.njit(cache=True)
-def _run(
-    x: np.ndarray,
-    p: np.ndarray,
-    z: np.ndarray,
-    rate: np.ndarray,
-    dt: np.ndarray,
-    kappa: np.ndarray,
-    truth: np.ndarray,
-    inv_sd: np.ndarray,
-    k0: int,
-    k1: int,
-    settled_from: int,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-    q2: np.ndarray,
-    weights: np.ndarray,
-) -> float:  # pragma: no cover - compiled
-    """Run the UKF (state ``x`` (4,), ``p`` (4, 4), in place) over epochs ``[k0, k1)`` with
-    ``kappa[k - k0]``; return the sum of the squared normalised errors over the epochs from
-    ``settled_from`` on, NaN if the filter fails (``x``, ``p`` then undefined).
-    ``weights = [λ + n, Wm0, Wc0, Wi]`` of the Merwe points."""
-    n = 4
-    lam_n, wm0, wc0, wi = weights[0], weights[1], weights[2], weights[3]
-    chol = np.zeros((n, n))
-    scaled = np.zeros((n, n))
-    sig = np.zeros((2 * n + 1, n))
-    hs = np.zeros(2 * n + 1)
-    pxz = np.zeros(n)
-    gain = np.zeros(n)
-    a = np.zeros(3)
-    total = 0.0
-    for k in range(k0, k1):
-        kap = kappa[k - k0]
-        for i in range(n):
-            p[i, i] += kap * dt[k] * q2[i]
-        for i in range(n):
-            for j in range(n):
-                scaled[i, j] = lam_n * p[i, j]
-        if not _cholesky(scaled, chol):
-            return np.nan
-        for i in range(n):
-            sig[0, i] = x[i]
-        for c in range(n):
-            for i in range(n):
-                sig[1 + c, i] = x[i] + chol[i, c]
-                sig[1 + n + c, i] = x[i] - chol[i, c]
-        r = rate[k]
-        zp = 0.0
-        for j in range(2 * n + 1):
-            hs[j] = _h(sig[j], w, u, v, r)
-            zp += (wm0 if j == 0 else wi) * hs[j]
-        # R at the predicted state: σ² + ‖a(x)ᵀ G_H⁻¹ diag(s_H)‖²
-        for m in range(3):
-            a[m] = (1.0 - x[1]) * (w[m] - x[2] * u[m] - x[3] * v[m])
-        rr = noise * noise
-        for m in range(3):
-            acc = 0.0
-            for l in range(3):
-                acc += a[l] * tinv[l, m]
-            acc *= tnoise[m]
-            rr += acc * acc
-        s = rr
-        for i in range(n):
-            pxz[i] = 0.0
-        for j in range(2 * n + 1):
-            wc = wc0 if j == 0 else wi
-            dz = hs[j] - zp
-            s += wc * dz * dz
-            for i in range(n):
-                pxz[i] += wc * (sig[j, i] - x[i]) * dz
-        if not (s > 0.0 and np.isfinite(s)):
-            return np.nan
-        y = z[k] - zp
-        for i in range(n):
-            gain[i] = pxz[i] / s
-            x[i] += gain[i] * y
-        for i in range(n):
-            for j in range(n):
-                p[i, j] -= gain[i] * s * gain[j]
-        for i in range(n):
-            for j in range(i + 1, n):
-                m_ij = 0.5 * (p[i, j] + p[j, i])
-                p[i, j] = m_ij
-                p[j, i] = m_ij
-        ok = True
-        for i in range(n):
-            if not np.isfinite(x[i]):
-                ok = False
-            for j in range(n):
-                if not np.isfinite(p[i, j]):
-                    ok = False
-        if not ok:
-            return np.nan
-        if k >= settled_from:
-            for i in range(n):
-                e = (x[i] - truth[k, i]) * inv_sd[i]
-                total += e * e
-    return total
-
-
-@nb.njit(cache=True)
-def _record(
-    x: np.ndarray,
-    p: np.ndarray,
-    z: np.ndarray,
-    rate: np.ndarray,
-    dt: np.ndarray,
-    kappa: np.ndarray,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-    q2: np.ndarray,
-    weights: np.ndarray,
-    out: np.ndarray,
-) -> int:  # pragma: no cover - compiled
-    """Run the whole episode step by step, writing each posterior ``x`` into ``out`` (K, 4);
-    returns the epochs run before a failure (K if none)."""
-    dummy_truth = np.zeros((1, 4))
-    inv_sd = np.zeros(4)
-    for k in range(z.size):
-        tot = _run(
-            x,
-            p,
-            z,
-            rate,
-            dt,
-            kappa[k:],
-            dummy_truth,
-            inv_sd,
-            k,
-            k + 1,
-            z.size,
-            w,
-            u,
-            v,
-            tinv,
-            tnoise,
-            noise,
-            q2,
-            weights,
-        )
-        if np.isnan(tot):
-            return k
-        out[k] = x
-    return z.size
+# --- the compiled filter: qkf.redundant_gyros.ukf_compiled ----------------------------------
 
 
 class CompiledUKF:
     """The compiled calibration UKF of one episode (module docstring)."""
 
     def __init__(self, ep: Episode) -> None:
-        s = ep.setup
         self.ep = ep
-        n = DIM
-        lam = s.alpha**2 * (n + s.kappa_points) - n
-        wm0 = lam / (n + lam)
-        self.weights = np.array([n + lam, wm0, wm0 + 1.0 - s.alpha**2 + s.beta, 0.5 / (n + lam)])
-        self.geometry = (s.w, s.u, s.v, s.triad_inv, s.triad_noise, float(s.noise), s.q_sd**2)
-        self.inv_sd = 1.0 / s.p0_sd
-        self.norm = float((ep.n_epochs - ep.settled_from) * n)
+        compiled = CompiledSetup.of(ep.setup)
+        self.weights = compiled.weights
+        self.geometry = compiled.geometry
+        self.inv_sd = 1.0 / ep.setup.p0_sd
+        self.norm = float((ep.n_epochs - ep.settled_from) * DIM)
 
     def prior(self) -> tuple[np.ndarray, np.ndarray]:
         s = self.ep.setup
@@ -308,7 +109,7 @@ class CompiledUKF:
         the settled sum of squared normalised errors there (NaN: the filter failed)."""
         i = self.ep.inputs
         return float(
-            _run(
+            run_span(
                 x,
                 p,
                 i.z,
@@ -330,7 +131,16 @@ class CompiledUKF:
         i = self.ep.inputs
         x, p = self.prior()
         out = np.full((i.z.size, DIM), np.nan)
-        _record(x, p, i.z, i.rate, i.dt, kappa, *self.geometry, self.weights, out)
+        chol, scaled, sig = np.zeros((DIM, DIM)), np.zeros((DIM, DIM)), np.zeros((9, DIM))
+        hs, pxz = np.zeros(9), np.zeros(DIM)
+        for k in range(i.z.size):
+            _, s = ukf_step(
+                x, p, float(i.z[k]), i.rate[k], float(i.dt[k]), float(kappa[k]),
+                *self.geometry, self.weights, chol, scaled, sig, hs, pxz,
+            )  # fmt: skip
+            if np.isnan(s):
+                break
+            out[k] = x
         return out
 
     def score(self, total: float) -> float:

@@ -25,7 +25,6 @@ from qkf.redundant_gyros.ukf import (
     UkfSetup,
     calibrate,
     make_setup,
-    triad_rate,
 )
 
 
@@ -122,43 +121,6 @@ def simulate_run(cfg: GyrosConfig, seed: int | None = None) -> GyroData:
     t = epochs(sc.duration_s, sc.dt_s)
     s = cfg.run.seed if seed is None else seed
     return simulate(unit, sc.body_rate, sc.faults, t, s, [0], sc.onset)
-
-
-@dataclass(frozen=True)
-class EpisodeInputs:
-    """What one calibration episode feeds its UKF and judges it by, over the K calibrated
-    epochs ``target.start …`` of trial 0 of a simulation (internal units)."""
-
-    z: np.ndarray  # (K,) readings of the calibrated gyro, deg/s
-    rate: np.ndarray  # (K, 3) healthy-triad rate ω̂_H, deg/s
-    truth: np.ndarray  # (K, 4) true [b deg/s, λ, δ_u rad, δ_v rad]
-    dt: np.ndarray  # (K,) prediction step before each epoch, s
-    onset_s: float | None  # the drawn onset (time of the run), s; None without an onset
-    t0_s: float = 0.0  # time of the run at the first calibrated epoch, s
-
-
-def episode_inputs(
-    cfg: GyrosConfig, unit: GyroUnit, setup: UkfSetup, target: Target, t: np.ndarray, draw: int
-) -> EpisodeInputs:
-    """The episode of the environment whose reset drew ``draw`` (the seed of its
-    simulation): readings, triad rates, truth and steps from ``target.start`` on."""
-    sc = cfg.scenario
-    data = simulate(unit, sc.body_rate, sc.faults, t, draw, [0], sc.onset)
-    s = target.start
-    coeffs = data.trial_coeffs(0)
-    assert coeffs is not None  # a simulation always knows its truth
-    n_steps = t.size - s
-    dt = np.diff(t[max(s - 1, 0) : s + n_steps])
-    if s == 0:
-        dt = np.concatenate([[t[1] - t[0]], dt])
-    return EpisodeInputs(
-        z=data.meas[0, s:, setup.gyro],
-        rate=triad_rate(unit, setup, data.meas[0, s:]),
-        truth=coeffs[s:, setup.gyro],
-        dt=dt,
-        onset_s=None if data.onset_s is None else float(data.onset_s[0]),
-        t0_s=float(t[s]),
-    )
 
 
 def run(cfg: GyrosConfig, data: GyroData | None = None, seed: int | None = None) -> RunResult:

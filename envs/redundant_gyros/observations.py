@@ -1,0 +1,95 @@
+"""Observations of the redundant-gyro environments: a registry of versions
+(docs/redundant_gyros.md, "Environment").
+
+Every version is built from the same per-period quantities (:class:`GyroObservationInputs`,
+no truth) for a whole batch of episodes at once; an entry names the quantities in the order it
+uses them. ``uses_nominal`` says whether it reads the likelihood gain over a κ = 1 copy of the
+filter, which then runs beside the agent's (the only reason that copy exists).
+
+=====  ===================================================  ======  ======  ======
+name   entry                                                  v0      v1      v2
+=====  ===================================================  ======  ======  ======
+sd     ``log10(σ/σ₀)`` of b, λ, δ_u, δ_v (4 entries)         0–3     0–3     0–3
+nis    mean NIS ``ν²/S`` over the period                     4       4       4
+gain   log-likelihood gain over a κ = 1 copy, per step       5       5       –
+time   elapsed fraction of the episode                       6       –       –
+rate   ``|ω̂_H|`` of the healthy triad at the period's end     7       6       5
+kappa  κ position in [0, 1] on the action scale              8       7       6
+=====  ===================================================  ======  ======  ======
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from envs.common.bounds import finite_clipped
+from qkf.core.registry import Registry
+
+
+@dataclass(frozen=True)
+class GyroObservationInputs:
+    """What an observation may read after a period, per episode (N rows)."""
+
+    p: np.ndarray  # (N, 4, 4) the UKF's covariance at the period's end
+    prior_sd: np.ndarray  # (4,) σ₀
+    nis: np.ndarray  # (N,) mean ν²/S over the period
+    loglik_gain_per_step: np.ndarray  # (N,) (ℓ − ℓ_nominal) / steps (NaN without the copy)
+    elapsed: np.ndarray  # (N,) elapsed fraction of the episode
+    rate_norm: np.ndarray  # (N,) |ω̂_H| at the period's last epoch, deg/s
+    position: np.ndarray  # (N,) κ position on the action scale
+
+
+def _sd(o: GyroObservationInputs) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):  # a failed filter: NaN, cleared after
+        return np.log10(np.sqrt(np.diagonal(o.p, axis1=1, axis2=2)) / o.prior_sd)
+
+
+PARTS: dict[str, Callable[[GyroObservationInputs], np.ndarray]] = {
+    "sd": _sd,
+    "nis": lambda o: o.nis[:, None],
+    "gain": lambda o: o.loglik_gain_per_step[:, None],
+    "time": lambda o: o.elapsed[:, None],
+    "rate": lambda o: o.rate_norm[:, None],
+    "kappa": lambda o: o.position[:, None],
+}
+"""The quantities an observation is made of, each (N, entries)."""
+PART_SIZES = {"sd": 4, "nis": 1, "gain": 1, "time": 1, "rate": 1, "kappa": 1}
+
+
+@dataclass(frozen=True)
+class GyroObservation:
+    """One observation version: its parts, in order (the κ position is always last)."""
+
+    parts: tuple[str, ...]
+    description: str
+
+    @property
+    def size(self) -> int:
+        return sum(PART_SIZES[p] for p in self.parts)
+
+    @property
+    def uses_nominal(self) -> bool:
+        """Whether it reads the κ = 1 copy's likelihood."""
+        return "gain" in self.parts
+
+    def build(self, o: GyroObservationInputs) -> np.ndarray:
+        """The observations (N, size), float32, finite and clipped."""
+        return finite_clipped(np.concatenate([PARTS[p](o) for p in self.parts], axis=1))
+
+
+GYRO_OBSERVATIONS: Registry[GyroObservation] = Registry("gyro observation")
+"""Observation versions of the redundant-gyro environments by name."""
+GYRO_OBSERVATIONS.register(
+    "v0",
+    GyroObservation(("sd", "nis", "gain", "time", "rate", "kappa"), "with the elapsed fraction"),
+)
+GYRO_OBSERVATIONS.register(
+    "v1", GyroObservation(("sd", "nis", "gain", "rate", "kappa"), "v0 without the clock")
+)
+GYRO_OBSERVATIONS.register(
+    "v2",
+    GyroObservation(("sd", "nis", "rate", "kappa"), "v1 without the κ = 1 copy's likelihood gain"),
+)

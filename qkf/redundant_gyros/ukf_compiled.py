@@ -1,0 +1,352 @@
+r"""The compiled calibration UKF: one epoch, a span of one episode, and decision periods of a
+batch of episodes (docs/redundant_gyros.md, "The compiled UKF").
+
+The filter of :class:`~qkf.redundant_gyros.ukf.CalibrationUKF` (filterpy's UKF with Merwe
+sigma points and an identity process model), written once as :func:`ukf_step`:
+
+    P⁻ = P + κ Δt diag(q²)                                   (random-walk prediction)
+    χ = [x, x ± columns of chol((λ + n) P⁻)]                   (2n + 1 sigma points)
+    ẑ = Σ Wm h(χ),  S = R(x) + Σ Wc (h(χ) − ẑ)²,  P_xz = Σ Wc (χ − x)(h(χ) − ẑ)
+    K = P_xz / S,  x ← x + K (z − ẑ),  P ← P⁻ − K S Kᵀ, symmetrised
+
+with ``h`` and ``R(x)`` (at the predicted state) of :mod:`~qkf.redundant_gyros.ukf`. A failed
+Cholesky, ``S ≤ 0`` or a non-finite value is a failure (the caller stops the filter). filterpy
+stays the reference: the estimates agree to 1e-9 σ₀ over whole episodes with κ changing
+(``tests/test_gyro_ukf_compiled.py``), at about a thousandth of the cost.
+
+Its users: :func:`run_span` (the hindsight search, :mod:`qkf.redundant_gyros.hindsight`) and
+:func:`run_periods` (the environments, :mod:`envs.redundant_gyros.episodes`), which steps every
+episode of a batch over its next decision period in parallel over episodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.redundant_gyros.ukf import DIM, UkfSetup
+
+
+@dataclass(frozen=True)
+class CompiledSetup:
+    """The constants of the compiled filter of one :class:`UkfSetup`.
+
+    ``geometry = (w, u, v, G_H⁻¹, s_H, σ_j, q²)``; ``weights = [λ + n, Wm0, Wc0, Wi]`` of the
+    Merwe points.
+    """
+
+    geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]
+    weights: np.ndarray
+
+    @classmethod
+    def of(cls, s: UkfSetup) -> CompiledSetup:
+        n = DIM
+        lam = s.alpha**2 * (n + s.kappa_points) - n
+        wm0 = lam / (n + lam)
+        weights = np.array([n + lam, wm0, wm0 + 1.0 - s.alpha**2 + s.beta, 0.5 / (n + lam)])
+        geometry = (s.w, s.u, s.v, s.triad_inv, s.triad_noise, float(s.noise), s.q_sd**2)
+        return cls(geometry, weights)
+
+
+@nb.njit(cache=True)
+def _cholesky(a: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover - compiled
+    """Lower Cholesky factor of the 4 × 4 ``a`` into ``out``; False if not positive definite."""
+    n = a.shape[0]
+    for j in range(n):
+        s = a[j, j]
+        for m in range(j):
+            s -= out[j, m] * out[j, m]
+        if not s > 0.0:
+            return False
+        d = np.sqrt(s)
+        out[j, j] = d
+        for i in range(j + 1, n):
+            s = a[i, j]
+            for m in range(j):
+                s -= out[i, m] * out[j, m]
+            out[i, j] = s / d
+        for i in range(j):
+            out[i, j] = 0.0
+    return True
+
+
+@nb.njit(cache=True)
+def _h(
+    s: np.ndarray, w: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray
+) -> float:  # pragma: no cover
+    """``(1 − λ) (w − δ_u u − δ_v v)ᵀ ω̂ − b`` of state ``s``, deg/s."""
+    acc = 0.0
+    for m in range(3):
+        acc += (w[m] - s[2] * u[m] - s[3] * v[m]) * r[m]
+    return (1.0 - s[1]) * acc - s[0]
+
+
+@nb.njit(cache=True)
+def _scratch() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Work arrays of :func:`ukf_step`: chol, scaled, sigma points, h(χ), P_xz."""
+    n = DIM
+    return (
+        np.zeros((n, n)),
+        np.zeros((n, n)),
+        np.zeros((2 * n + 1, n)),
+        np.zeros(2 * n + 1),
+        np.zeros(n),
+    )
+
+
+@nb.njit(cache=True)
+def ukf_step(
+    x: np.ndarray,
+    p: np.ndarray,
+    z: float,
+    r: np.ndarray,
+    dt: float,
+    kap: float,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+    q2: np.ndarray,
+    weights: np.ndarray,
+    chol: np.ndarray,
+    scaled: np.ndarray,
+    sig: np.ndarray,
+    hs: np.ndarray,
+    pxz: np.ndarray,
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """One predict + update of ``(x, p)`` in place with reading ``z`` and triad rate ``r``
+    (deg/s), step ``dt`` (s) and factor ``kap`` (module docstring). Returns the innovation
+    ``ν`` and its variance ``S``; ``S`` is NaN if the filter failed (``x``, ``p`` undefined)."""
+    n = 4
+    lam_n, wm0, wc0, wi = weights[0], weights[1], weights[2], weights[3]
+    for i in range(n):
+        p[i, i] += kap * dt * q2[i]
+    for i in range(n):
+        for j in range(n):
+            scaled[i, j] = lam_n * p[i, j]
+    if not _cholesky(scaled, chol):
+        return np.nan, np.nan
+    for i in range(n):
+        sig[0, i] = x[i]
+    for c in range(n):
+        for i in range(n):
+            sig[1 + c, i] = x[i] + chol[i, c]
+            sig[1 + n + c, i] = x[i] - chol[i, c]
+    zp = 0.0
+    for j in range(2 * n + 1):
+        hs[j] = _h(sig[j], w, u, v, r)
+        zp += (wm0 if j == 0 else wi) * hs[j]
+    # R at the predicted state: σ² + ‖a(x)ᵀ G_H⁻¹ diag(s_H)‖²
+    rr = noise * noise
+    for m in range(3):
+        acc = 0.0
+        for m2 in range(3):
+            acc += (1.0 - x[1]) * (w[m2] - x[2] * u[m2] - x[3] * v[m2]) * tinv[m2, m]
+        acc *= tnoise[m]
+        rr += acc * acc
+    s = rr
+    for i in range(n):
+        pxz[i] = 0.0
+    for j in range(2 * n + 1):
+        wc = wc0 if j == 0 else wi
+        dz = hs[j] - zp
+        s += wc * dz * dz
+        for i in range(n):
+            pxz[i] += wc * (sig[j, i] - x[i]) * dz
+    if not (s > 0.0 and np.isfinite(s)):
+        return np.nan, np.nan
+    y = z - zp
+    for i in range(n):
+        x[i] += pxz[i] / s * y
+    for i in range(n):
+        for j in range(n):
+            p[i, j] -= (pxz[i] / s) * s * (pxz[j] / s)
+    for i in range(n):
+        for j in range(i + 1, n):
+            m_ij = 0.5 * (p[i, j] + p[j, i])
+            p[i, j] = m_ij
+            p[j, i] = m_ij
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return y, np.nan
+        for j in range(n):
+            if not np.isfinite(p[i, j]):
+                return y, np.nan
+    return y, s
+
+
+@nb.njit(cache=True)
+def run_span(
+    x: np.ndarray,
+    p: np.ndarray,
+    z: np.ndarray,
+    rate: np.ndarray,
+    dt: np.ndarray,
+    kappa: np.ndarray,
+    truth: np.ndarray,
+    inv_sd: np.ndarray,
+    k0: int,
+    k1: int,
+    settled_from: int,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+    q2: np.ndarray,
+    weights: np.ndarray,
+) -> float:  # pragma: no cover - compiled
+    """Run the UKF (``x`` (4,), ``p`` (4, 4), in place) over epochs ``[k0, k1)`` of one
+    episode with ``kappa[k − k0]``; return the sum of the squared normalised errors
+    ``((x̂ − x) inv_sd)²`` over the epochs from ``settled_from`` on, NaN if the filter fails."""
+    chol, scaled, sig, hs, pxz = _scratch()
+    total = 0.0
+    for k in range(k0, k1):
+        _, s = ukf_step(
+            x, p, z[k], rate[k], dt[k], kappa[k - k0],
+            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
+        )  # fmt: skip
+        if np.isnan(s):
+            return np.nan
+        if k >= settled_from:
+            for i in range(4):
+                e = (x[i] - truth[k, i]) * inv_sd[i]
+                total += e * e
+    return total
+
+
+SUMS = ("nis", "loglik", "loglik_nominal", "error")
+"""The per-period sums :func:`run_periods` returns per episode, in this order: ``Σ ν²/S``,
+``Σ ℓ`` and the κ = 1 copy's ``Σ ℓ`` with ``ℓ = −½ (ν²/S + log S)``, and
+``Σ ‖(x̂ − x) / σ₀‖``."""
+
+
+@nb.njit(cache=True)
+def _period_row(
+    b: int,
+    x: np.ndarray,
+    p: np.ndarray,
+    z: np.ndarray,
+    rate: np.ndarray,
+    dt: np.ndarray,
+    truth: np.ndarray,
+    inv_sd: np.ndarray,
+    kappa: np.ndarray,
+    k0: np.ndarray,
+    k1: np.ndarray,
+    nominal: bool,
+    keep_cov: bool,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+    q2: np.ndarray,
+    weights: np.ndarray,
+    failed: np.ndarray,
+    nominal_failed: np.ndarray,
+    sums: np.ndarray,
+    err: np.ndarray,
+    cov: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Episode ``b`` of :func:`run_periods`."""
+    chol, scaled, sig, hs, pxz = _scratch()
+    xs = x[b].copy()  # the state at the period's start, for the κ = 1 copy
+    ps = p[b].copy()
+    err[b] = np.nan
+    if keep_cov:
+        cov[b] = np.nan
+    for j in range(4):
+        sums[b, j] = 0.0
+    nominal_failed[b] = False
+    steps = k1[b] - k0[b]
+    if failed[b]:
+        return
+    for i in range(steps):
+        k = k0[b] + i
+        y, s = ukf_step(
+            x[b], p[b], z[b, k], rate[b, k], dt[k], kappa[b],
+            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
+        )  # fmt: skip
+        if np.isnan(s):
+            failed[b] = True
+            return
+        sums[b, 0] += y * y / s
+        sums[b, 1] += -0.5 * (y * y / s + np.log(s))
+        norm2 = 0.0
+        for j in range(4):
+            e = x[b, j] - truth[b, k, j]
+            err[b, i, j] = e
+            norm2 += (e * inv_sd[j]) ** 2
+        sums[b, 3] += np.sqrt(norm2)
+        if keep_cov:
+            for j in range(4):
+                for m in range(4):
+                    cov[b, i, j, m] = p[b, j, m]
+    if not nominal:
+        return
+    for i in range(steps):
+        k = k0[b] + i
+        y, s = ukf_step(
+            xs, ps, z[b, k], rate[b, k], dt[k], 1.0,
+            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
+        )  # fmt: skip
+        if np.isnan(s):
+            nominal_failed[b] = True
+            return
+        sums[b, 2] += -0.5 * (y * y / s + np.log(s))
+
+
+@nb.njit(cache=True, parallel=True)
+def run_periods(
+    x: np.ndarray,
+    p: np.ndarray,
+    z: np.ndarray,
+    rate: np.ndarray,
+    dt: np.ndarray,
+    truth: np.ndarray,
+    inv_sd: np.ndarray,
+    kappa: np.ndarray,
+    k0: np.ndarray,
+    k1: np.ndarray,
+    nominal: bool,
+    keep_cov: bool,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+    q2: np.ndarray,
+    weights: np.ndarray,
+    failed: np.ndarray,
+    nominal_failed: np.ndarray,
+    sums: np.ndarray,
+    err: np.ndarray,
+    cov: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Step episode ``b`` of a batch over its epochs ``[k0[b], k1[b])`` with ``kappa[b]``, in
+    parallel over episodes; ``x`` (B, 4), ``p`` (B, 4, 4) and ``failed`` (B,) in place. A
+    failed episode is not stepped.
+
+    Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
+    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 4), the :data:`SUMS` over the
+    epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
+    ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
+    ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
+    epochs (for ``sums[:, 2]``; ``nominal_failed`` if it fails, the agent's filter not)."""
+    for b in nb.prange(x.shape[0]):
+        _period_row(
+            b, x, p, z, rate, dt, truth, inv_sd, kappa, k0, k1, nominal, keep_cov,
+            w, u, v, tinv, tnoise, noise, q2, weights, failed, nominal_failed, sums, err, cov,
+        )  # fmt: skip
+
+
+__all__ = ["SUMS", "CompiledSetup", "run_periods", "run_span", "ukf_step"]
