@@ -8,6 +8,8 @@ calibrated states over their prior sd (:mod:`qkf.redundant_gyros.hindsight`):
 
 * every constant κ of the action set, and the best one over all the episodes (pooled);
 * ``hindsight``: the episode's own best schedule, truth known (coordinate descent);
+* ``level-informed``: the episode's own best constant κ, what a policy that identified the
+  episode's noise levels (``scenario.onset.drift_scale``, ``noise_factor``) at once could hold;
 * ``onset-informed``: κ_pre before the first period after the drawn onset, κ_post from it on,
   the pair best over all the episodes (it knows the onset time, nothing of the noise);
 * with ``--control``, the same on the *control* scenario: the same config and seeds with the
@@ -104,6 +106,9 @@ def comparisons(s: Scores, kappas: np.ndarray, counts: np.ndarray) -> list[dict[
             c,
         ),
         ("κ = 1 (nominal) / best constant", s.constant[:, nominal], c),
+        # the episode's own best constant: a policy that identified the episode's noise levels
+        # at once and held the κ they match (it knows nothing of the onset)
+        ("level-informed (own best constant) / best constant", s.constant.min(axis=1), c),
         ("hindsight / onset-informed", s.hindsight, flat[:, pair]),
     ]
     out: list[dict[str, object]] = []

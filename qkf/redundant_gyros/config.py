@@ -192,11 +192,20 @@ class OnsetDrift(StrictModel):
     step: OnsetStep = OnsetStep()
     drift: OnsetDriftRates = OnsetDriftRates()
     drift_from: Literal["onset", "start"] = "onset"
+    # noise levels drawn per episode, unknown to the filter (docs/redundant_gyros.md, "Noise
+    # levels"): a log-uniform factor on every drift rate (the coefficients' instability) and one
+    # on the gyro's white-noise sd (its angle random walk); null: no draw, factor 1
+    drift_scale: tuple[PositiveFloat, PositiveFloat] | None = None
+    noise_factor: tuple[PositiveFloat, PositiveFloat] | None = None
 
     @model_validator(mode="after")
     def _range(self) -> OnsetDrift:
         if self.onset_s[0] > self.onset_s[1]:
             raise ValueError("onset_s: [earliest, latest] with earliest ≤ latest")
+        for name in ("drift_scale", "noise_factor"):
+            r = getattr(self, name)
+            if r is not None and r[0] > r[1]:
+                raise ValueError(f"{name}: [low, high] with low ≤ high")
         return self
 
 

@@ -23,7 +23,14 @@ from qkf.core.units import DEG
 from qkf.redundant_gyros.config import GyrosConfig, OnsetDrift
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for
-from qkf.redundant_gyros.scenario import body_rate, epochs, first_epoch, onset_generator, truth
+from qkf.redundant_gyros.scenario import (
+    body_rate,
+    epochs,
+    first_epoch,
+    log_uniform,
+    onset_generator,
+    truth,
+)
 
 
 @dataclass(frozen=True)
@@ -72,23 +79,31 @@ class EpisodeSampler:
         unit, t, s, gyro = self.unit, self.t, self.target.start, self.setup.gyro
         onset = self.cfg.scenario.onset
         clean, coeffs_cal, onset_s = self._clean, self._truth.coeffs[:, gyro], None
+        noise_factor = 1.0
         if onset is not None and self._onset_gyro is not None and self._onset_sd is not None:
             g = self._onset_gyro
             lo, hi = onset.onset_s
-            onset_s, step, eps = _onset_numbers(onset_generator(draw, 0), lo, hi, t.size)
+            rng = onset_generator(draw, 0)
+            onset_s, step, eps = _onset_numbers(rng, lo, hi, t.size)
             step = step * self._onset_sd[0]
+            scale = log_uniform(rng, onset.drift_scale)  # draw_onset's order
+            noise_factor = log_uniform(rng, onset.noise_factor)
             k_walk = 0 if onset.drift_from == "start" else first_epoch(t, onset_s)
             c = np.empty((t.size, 4))
             clean = clean.copy()
             _onset_readings(
                 self._truth.coeffs[:, g], first_epoch(t, onset_s), step, eps, self._sqrt_dt,
-                self._onset_sd[1], k_walk, unit.w[g], unit.u[g], unit.v[g], self.rate, c,
-                clean[:, g],
+                self._onset_sd[1], scale, k_walk, unit.w[g], unit.u[g], unit.v[g], self.rate,
+                c, clean[:, g],
             )  # fmt: skip
             if g == gyro:
                 coeffs_cal = c
         noise = _normals(np.random.default_rng([draw, 0]), t.size, unit.n)
-        meas = clean - self._sd * noise
+        sd = self._sd
+        if onset is not None and onset.noise_factor is not None and self._onset_gyro is not None:
+            sd = sd.copy()
+            sd[:, self._onset_gyro] = sd[:, self._onset_gyro] * noise_factor
+        meas = clean - sd * noise
         for i, k0, offset in self._truth.stuck:
             meas[k0:, i] = meas[max(k0 - 1, 0), i] + offset
         rate = np.empty((t.size - s, 3))
@@ -146,6 +161,7 @@ def _onset_readings(
     eps: np.ndarray,
     sqrt_dt: np.ndarray,
     rate_sd: np.ndarray,
+    scale: float,
     k_walk: int,
     w: np.ndarray,
     u: np.ndarray,
@@ -155,14 +171,14 @@ def _onset_readings(
     clean: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """The onset gyro's coefficients ``coeffs`` (E, 4) and noise-free readings ``clean`` (E,):
-    ``base`` plus the step from ``k_on`` on plus the walk ``Σ eps √Δt σ`` from after
+    ``base`` plus the step from ``k_on`` on plus the walk ``Σ eps √Δt σ scale`` from after
     ``k_walk`` (as :func:`~qkf.redundant_gyros.scenario.draw_onset` and ``apply_onset``), then
     ``(1 − λ) w̄ᵀ ω − b`` (:func:`~qkf.redundant_gyros.geometry.readings`)."""
     walk = np.zeros(4)
     for k in range(base.shape[0]):
         for i in range(4):
             if k > k_walk:
-                walk[i] += eps[k, i] * sqrt_dt[k] * rate_sd[i]
+                walk[i] += eps[k, i] * sqrt_dt[k] * rate_sd[i] * scale
             c = base[k, i]
             if k >= k_on:
                 c += step[i]

@@ -130,13 +130,25 @@ class OnsetDraw:
     onset_s: float  # s; at or after the end of the run: no step
     step: np.ndarray  # (4,) added to the coefficients from the onset's first epoch on
     walk: np.ndarray  # (E, 4) random-walk offset per epoch (0 before its start)
+    drift_scale: float = 1.0  # the factor drawn on the drift rates (1: none drawn)
+    noise_factor: float = 1.0  # the factor drawn on the gyro's white-noise sd (1: none drawn)
+
+
+def log_uniform(rng: np.random.Generator, bounds: tuple[float, float] | None) -> float:
+    """A log-uniform draw in ``bounds``; 1.0 and no draw for ``None``."""
+    if bounds is None:
+        return 1.0
+    return float(np.exp(rng.uniform(np.log(bounds[0]), np.log(bounds[1]))))
 
 
 def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> OnsetDraw:
     """Draw the onset time ``U(onset_s)``, the step ``N(0, diag(step²))`` and the walk: from its
     first epoch ``k₀`` (the onset's, or 0 with ``drift_from: start``) on, increments
     ``N(0, σ² Δt_k)``, so the offset at epoch k has variance ``σ² (t_k − t_{k₀})``. The draws
-    are taken in this fixed order whatever the sds, so a sd of 0 leaves the others unchanged."""
+    are taken in this fixed order whatever the sds, so a sd of 0 leaves the others unchanged.
+    Then, only if the spec asks for them, the noise levels: the drift scale (log-uniform, it
+    multiplies the walk's increments) and the white-noise factor; a spec without them draws
+    exactly what it drew before they existed."""
     lo, hi = spec.onset_s
     onset = float(rng.uniform(lo, hi))
     st, dr = spec.step, spec.drift
@@ -151,10 +163,12 @@ def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> Ons
     )
     step = rng.standard_normal(4) * step_sd
     eps = rng.standard_normal((t.size, 4))
+    scale = log_uniform(rng, spec.drift_scale)
+    noise = log_uniform(rng, spec.noise_factor)
     k0 = 0 if spec.drift_from == "start" else first_epoch(t, onset)
-    inc = eps * np.sqrt(np.diff(t, prepend=t[0]))[:, None] * rate_sd
+    inc = eps * np.sqrt(np.diff(t, prepend=t[0]))[:, None] * rate_sd * scale
     inc[: k0 + 1] = 0.0  # the walk is 0 at its first epoch
-    return OnsetDraw(onset, step, np.cumsum(inc, axis=0))
+    return OnsetDraw(onset, step, np.cumsum(inc, axis=0), scale, noise)
 
 
 def apply_onset(coeffs: np.ndarray, gyro: int, draw: OnsetDraw, t: np.ndarray) -> np.ndarray:
@@ -197,6 +211,11 @@ def simulate(
         onset_s = np.array([d.onset_s for d in draws])
     clean = unit.readings(coeffs, rate)  # (E, n), or (B, E, n)
     sd = unit.noise * tr.noise_factor  # (E, n)
+    if onset is not None and onset.noise_factor is not None:  # per trial: (B, E, n)
+        g = unit.index(onset.gyro)
+        sd = np.broadcast_to(sd, (len(draws), *sd.shape)).copy()
+        for row, d in enumerate(draws):
+            sd[row, :, g] = sd[row, :, g] * d.noise_factor
     meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
     for i, k0, offset in tr.stuck:
         held = meas[:, max(k0 - 1, 0), i] + offset
