@@ -137,6 +137,9 @@ class GyroEpisodes:
         k0 = self.k.copy()
         k1 = np.minimum(k0 + self.period, self.n_steps)
         steps = k1 - k0
+        # an episode past its end (the vector env's autoreset steps it before restarting it, and
+        # drops what this step says of it) runs no epoch: divide its zero sums by 1, not 0
+        per_step = np.maximum(steps, 1)
         c = self.compiled
         run_periods(
             self.x, self.p, self.z, self.rate, self.sampler.dt, self.truth, self._inv_sd,
@@ -158,7 +161,7 @@ class GyroEpisodes:
             prior_sd=self.setup.p0_sd,
             steps=steps,
             dt=dt,
-            normalised_error=error / steps,
+            normalised_error=error / per_step,
         )
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             reward = np.asarray(self.reward.fn(period), dtype=float)
@@ -167,8 +170,8 @@ class GyroEpisodes:
         inputs = GyroObservationInputs(
             p=self.p,
             prior_sd=self.setup.p0_sd,
-            nis=nis / steps,
-            loglik_gain_per_step=np.full(self.n, np.nan) if gain is None else gain / steps,
+            nis=nis / per_step,
+            loglik_gain_per_step=np.full(self.n, np.nan) if gain is None else gain / per_step,
             elapsed=k1 / self.n_steps,
             rate_norm=np.linalg.norm(self.rate[rows, last], axis=1),
             position=np.asarray(position, dtype=float),
