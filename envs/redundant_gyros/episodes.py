@@ -150,7 +150,7 @@ class GyroEpisodes:
         self.k = k1
         failed = self.failed.copy()
         rows = np.arange(self.n)
-        nis, ll, ll_nom, error = self._sums.T
+        nis, ll, ll_nom, error, error_sq = self._sums.T
         # a κ = 1 copy that fails where the agent's filter does not: no gain either way
         gain = ll - np.where(self._nominal_failed, ll, ll_nom) if self.needs_nominal else None
         dt = self.sampler.dt[np.minimum(k0, self.n_steps - 1)]
@@ -162,6 +162,7 @@ class GyroEpisodes:
             steps=steps,
             dt=dt,
             normalised_error=error / per_step,
+            normalised_sq_error=error_sq / (4.0 * per_step),
         )
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             reward = np.asarray(self.reward.fn(period), dtype=float)

@@ -5,7 +5,9 @@ A reward turns one decision period of a batch of calibration episodes (a :class:
 N rows) into N numbers; a non-finite one is replaced by the divergence reward. Built in:
 ``likelihood`` (default, no truth) ``(ℓ_agent − ℓ_nominal) / (steps Δt)`` with
 ``ℓ = −½ Σ (ν²/S + log S)`` and the nominal filter a κ = 1 copy run from the same state over
-the period; ``oracle`` (truth) minus the period's mean of ``‖(x̂ − x) / σ₀‖``; ``nees`` (truth)
+the period; ``oracle`` (truth) minus the period's mean of ``‖(x̂ − x) / σ₀‖``; ``mean_square``
+(truth) minus the period's mean of ``‖(x̂ − x) / σ₀‖² / 4``, the hindsight's ``J`` per epoch;
+``nees`` (truth)
 minus ``|mean NEES / 4 − 1|``. Installed packages can add rewards through the entry-point group
 ``qkf.gyro_rewards``: a :class:`GyroReward` whose function maps a :class:`GyroPeriod` to an
 (N,) array, and that says whether it reads the truth, the κ = 1 copy (``uses_nominal``: the
@@ -37,6 +39,7 @@ class GyroPeriod:
     steps: np.ndarray  # (N,) epochs of the period
     dt: np.ndarray  # (N,) step, s
     normalised_error: np.ndarray  # (N,) the period's mean of ‖(x̂ − x) / σ₀‖
+    normalised_sq_error: np.ndarray  # (N,) the period's mean of ‖(x̂ − x) / σ₀‖² / 4
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,11 @@ def oracle_reward(o: GyroPeriod) -> np.ndarray:
     return -o.normalised_error
 
 
+def mean_square_reward(o: GyroPeriod) -> np.ndarray:
+    """Minus the period's mean of ``‖(x̂ − x) / σ₀‖² / 4``: the hindsight's ``J`` per epoch."""
+    return -o.normalised_sq_error
+
+
 def nees_reward(o: GyroPeriod) -> np.ndarray:
     """Minus ``|mean NEES / 4 − 1|`` over the period."""
     assert o.cov is not None  # registered with uses_cov
@@ -81,6 +89,14 @@ GYRO_REWARDS.register(
 )
 GYRO_REWARDS.register(
     "oracle", GyroReward(oracle_reward, "minus the error over the prior sd", uses_truth=True)
+)
+GYRO_REWARDS.register(
+    "mean_square",
+    GyroReward(
+        mean_square_reward,
+        "minus the mean square error over the prior sd (the judged J)",
+        uses_truth=True,
+    ),
 )
 GYRO_REWARDS.register(
     "nees",

@@ -221,10 +221,10 @@ def run_span(
     return total
 
 
-SUMS = ("nis", "loglik", "loglik_nominal", "error")
+SUMS = ("nis", "loglik", "loglik_nominal", "error", "error_sq")
 """The per-period sums :func:`run_periods` returns per episode, in this order: ``Σ ν²/S``,
-``Σ ℓ`` and the κ = 1 copy's ``Σ ℓ`` with ``ℓ = −½ (ν²/S + log S)``, and
-``Σ ‖(x̂ − x) / σ₀‖``."""
+``Σ ℓ`` and the κ = 1 copy's ``Σ ℓ`` with ``ℓ = −½ (ν²/S + log S)``, ``Σ ‖(x̂ − x) / σ₀‖``
+and ``Σ ‖(x̂ − x) / σ₀‖²``."""
 
 
 @nb.njit(cache=True)
@@ -263,7 +263,7 @@ def _period_row(
     err[b] = np.nan
     if keep_cov:
         cov[b] = np.nan
-    for j in range(4):
+    for j in range(sums.shape[1]):
         sums[b, j] = 0.0
     nominal_failed[b] = False
     steps = k1[b] - k0[b]
@@ -286,6 +286,7 @@ def _period_row(
             err[b, i, j] = e
             norm2 += (e * inv_sd[j]) ** 2
         sums[b, 3] += np.sqrt(norm2)
+        sums[b, 4] += norm2
         if keep_cov:
             for j in range(4):
                 for m in range(4):
@@ -337,7 +338,7 @@ def run_periods(
     failed episode is not stepped.
 
     Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
-    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 4), the :data:`SUMS` over the
+    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 5), the :data:`SUMS` over the
     epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
     ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
     ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
