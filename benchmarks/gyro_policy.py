@@ -1,21 +1,21 @@
 """A trained gyro policy against the constant κ schedules and the level-informed one, per episode
-(docs/redundant_gyros.md, "A first policy on the noise levels").
+(docs/redundant_gyros.md, "Policies on the noise levels").
 
 Run: ``.venv/bin/python benchmarks/gyro_policy.py MODEL.zip [MODEL2.zip …] --config
 gyro_noise_levels --episodes 64 [--frame-stack 4]``.
 
 Each episode is environment seed ``seed + i`` (benchmark seeds, 5,000,000 on: never trained or
-validated on). A policy acts deterministically in ``qkf/RedundantGyroCalibration-v2``'s batched
-SB3 environment (observation v2, stacked ``--frame-stack`` deep as in training); its criterion
-is the hindsight's ``J``, the settled mean square of the four calibrated states over their
-prior sd (:mod:`qkf.redundant_gyros.hindsight`), accumulated from the environment's own
-per-epoch errors. The same episodes are scored for every constant κ of the action set
-(:func:`~qkf.redundant_gyros.hindsight.constant_scores`) and for the innovation-based adaptive
-κ (:mod:`qkf.redundant_gyros.nis_adaptive`), tuned on ``--tune-episodes`` episodes from
-``--tune-seed`` (tuning seeds, not the judged ones). Printed: policy ÷ best constant
-(pooled over the episodes) and policy ÷ level-informed (each episode's own best constant), as
-the RMS ratio over episodes with a paired percentile bootstrap 95 % interval, the median
-per-episode ratio and the share of episodes the policy wins, and the κ it chose most.
+validated on). A policy acts deterministically in the gyro environments' batched SB3
+environment (observation ``--observation``, v2 by default, stacked ``--frame-stack`` deep as in
+training); its criterion is the hindsight's ``J``, the settled mean square of the four
+calibrated states over their prior sd (:mod:`qkf.redundant_gyros.hindsight`), accumulated from
+the environment's own per-epoch errors. The same episodes are scored for every constant κ of
+the action set (:func:`~qkf.redundant_gyros.hindsight.constant_scores`) and for the innovation-
+based adaptive κ (:mod:`qkf.redundant_gyros.nis_adaptive`), tuned on ``--tune-episodes``
+episodes from ``--tune-seed`` (tuning seeds, not the judged ones). Printed: policy ÷ best
+constant (pooled over the episodes) and policy ÷ level-informed (each episode's own best
+constant), as the RMS ratio over episodes with a paired percentile bootstrap 95 % interval, the
+median per-episode ratio and the share of episodes the policy wins, and the κ it chose most.
 """
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ warnings.filterwarnings("ignore", "(?s).*out of date.*", DeprecationWarning)
 
 
 def policy_scores(
-    model_path: Path, config: str, seeds: np.ndarray, frame_stack: int
+    model_path: Path, config: str, seeds: np.ndarray, frame_stack: int, observation: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """``J`` per episode of the policy, and the κ it chose (episodes, periods)."""
     cfg = load_config(config)
     n = seeds.size
-    base = BatchedGyroSB3Env(n, cfg, reward="oracle", observation="v2")
+    base = BatchedGyroSB3Env(n, cfg, reward="oracle", observation=observation)
     episodes = base.episodes
     env = VecFrameStack(base, frame_stack) if frame_stack > 1 else base
     model = PPO.load(model_path, device="cpu")
@@ -82,6 +82,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=64)
     ap.add_argument("--seed", type=int, default=5_000_000)
     ap.add_argument("--frame-stack", type=int, default=4)
+    ap.add_argument("--observation", default="v2", help="the version the policies saw")
     ap.add_argument("--tune-seed", type=int, default=1_000_000, help="nis-adaptive's tuning")
     ap.add_argument("--tune-episodes", type=int, default=16)
     args = ap.parse_args()
@@ -102,7 +103,7 @@ def main() -> None:
     print(ratio_row("level-informed ÷ best constant", const.min(axis=1), const[:, best], counts))
     print(ratio_row("nis-adaptive ÷ best constant", adaptive, const[:, best], counts))
     for path in args.models:
-        j, chosen = policy_scores(path, args.config, seeds, args.frame_stack)
+        j, chosen = policy_scores(path, args.config, seeds, args.frame_stack, args.observation)
         print(ratio_row(f"`{path}` ÷ best constant", j, const[:, best], counts))
         print(ratio_row(f"`{path}` ÷ level-informed", j, const.min(axis=1), counts))
         print(ratio_row(f"`{path}` ÷ nis-adaptive", j, adaptive, counts))

@@ -15,7 +15,7 @@ import pytest
 
 import envs  # registers the ids
 from envs.common.actions import ActionMap
-from envs.redundant_gyros import GYRO_ENV_ID, GYRO_ENV_ID_V1, GYRO_ENV_ID_V2
+from envs.redundant_gyros import GYRO_ENV_ID, GYRO_ENV_ID_V1, GYRO_ENV_ID_V2, GYRO_ENV_ID_V3
 from envs.redundant_gyros.episodes import GyroEpisodes
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS, PART_SIZES
 from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
@@ -54,6 +54,7 @@ def _seed_draw(seed: int) -> int:
     [
         (GYRO_ENV_ID_V1, ONSET, 11),  # calibrated from t = 0, an onset inside
         (GYRO_ENV_ID, ["scenario.duration_s=90"], 4),  # five_gyros_s_bias: from the fault on
+        (GYRO_ENV_ID_V3, ["scenario.duration_s=120"], 12),  # noise levels; the lag-1 entry
     ],
 )
 def test_compiled_env_follows_filterpy_with_kappa_changing(
@@ -84,7 +85,8 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
         visited.add(a)
         nominal.load(ref.x.copy(), ref.P.copy())  # the κ = 1 copy from the period's start
         k1 = min(k + u.period, n_epochs)
-        ll_agent = ll_nominal = nis = 0.0
+        ll_agent = ll_nominal = nis = lag1 = 0.0
+        r_prev = None
         for j in range(k, k1):
             z, rate, dt = float(ep.z[j]), ep.rate[j], float(ep.dt[j])
             r = ref.step(z, rate, dt, kappa)
@@ -93,6 +95,10 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
             ll_agent += float(log_likelihood(np.array(r.innovation), np.array(r.variance)))
             ll_nominal += float(log_likelihood(np.array(rn.innovation), np.array(rn.variance)))
             nis += r.innovation**2 / r.variance
+            r_norm = r.innovation / np.sqrt(r.variance)
+            if r_prev is not None:
+                lag1 += r_norm * r_prev
+            r_prev = r_norm
         obs, reward, term, trunc, info = env.step(a)
         assert not term and trunc == (k1 == n_epochs)
         assert info["kappa"] == kappa
@@ -116,6 +122,7 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
         want = {
             "sd": np.log10(np.sqrt(np.diag(ref.P)) / p0),
             "nis": np.array([nis / steps]),
+            "lag1": np.array([lag1 / max(steps - 1, 1)]),
             "gain": np.array([gain]),
             "time": np.array([k1 / n_epochs]),
             "rate": np.array([np.linalg.norm(ep.rate[k1 - 1])]),
@@ -123,9 +130,8 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
         }
         expected_obs = np.concatenate([want[p] for p in parts])
         gain_tol = 1e-9 * (abs(ll_agent) + abs(ll_nominal)) / steps + 1e-6 * abs(gain)
-        atol = np.concatenate(
-            [np.full(want[p].size, gain_tol if p == "gain" else 0.0) for p in parts]
-        )
+        tols = {"gain": gain_tol, "lag1": 1e-9}  # lag1: a sum of ±1 products, near 0
+        atol = np.concatenate([np.full(want[p].size, tols.get(p, 0.0)) for p in parts])
         assert obs.dtype == np.float32 and obs.shape == expected_obs.shape
         assert np.all(np.abs(obs - expected_obs) <= atol + 1e-6 * np.abs(expected_obs)), (
             n,

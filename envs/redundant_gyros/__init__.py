@@ -3,8 +3,9 @@
 that calibrates one gyro of a redundant skewed unit (:mod:`qkf.redundant_gyros`) every decision
 period. v1 runs on ``five_gyros_onset_drift`` by default (an onset drawn per episode, drifting
 coefficients) and its observation has no elapsed-time entry; v2 also leaves out the likelihood
-gain over a κ = 1 copy (so no copy runs) and rewards with ``oracle`` by default; v0 stays as
-it was.
+gain over a κ = 1 copy (so no copy runs) and rewards with ``oracle`` by default; v3 adds the
+lag-1 correlation of the normalised innovations to v2 and runs on ``gyro_noise_levels`` by
+default; v0 stays as it was.
 
 :mod:`.episodes` steps N episodes through the compiled UKF; :mod:`.env` is the single
 environment (one episode), :mod:`.vector` the batched Gymnasium ``VectorEnv`` (what
@@ -27,6 +28,7 @@ from qkf.redundant_gyros.scenario import epochs
 GYRO_ENV_ID = "qkf/RedundantGyroCalibration-v0"
 GYRO_ENV_ID_V1 = "qkf/RedundantGyroCalibration-v1"
 GYRO_ENV_ID_V2 = "qkf/RedundantGyroCalibration-v2"
+GYRO_ENV_ID_V3 = "qkf/RedundantGyroCalibration-v3"
 VECTOR_ENTRY_POINT = "envs.redundant_gyros.vector:BatchedGyroCalibrationEnv"
 SB3_VEC_ENV = "envs.redundant_gyros.sb3:BatchedGyroSB3Env"
 
@@ -43,59 +45,46 @@ def check_scenario(scenario: str, overrides: Sequence[str]) -> list[str]:
     return scenario_problems(load_config, scenario, overrides, _has_a_gyro_to_calibrate)
 
 
-register_environment(
-    Environment(
-        id=GYRO_ENV_ID,
-        entry_point="envs.redundant_gyros.env:RedundantGyroCalibrationEnv",
-        problem="redundant_gyros",
-        rewards=GYRO_REWARDS,
-        observation_size=OBS_SIZE,
-        check_scenario=check_scenario,
-        observation="v0",
-        vector_entry_point=VECTOR_ENTRY_POINT,
-        sb3_vec_env=SB3_VEC_ENV,
-        description="redundant skewed gyros: κ of the calibration UKF of one gyro",
+VERSIONS = {
+    GYRO_ENV_ID: ("v0", "redundant skewed gyros: κ of the calibration UKF of one gyro"),
+    GYRO_ENV_ID_V1: (
+        "v1",
+        "redundant skewed gyros, unknown fault onset and drifting coefficients; no clock in "
+        "the observation",
+    ),
+    GYRO_ENV_ID_V2: (
+        "v2",
+        "redundant skewed gyros as v1, without the κ = 1 copy's likelihood gain in the "
+        "observation; oracle reward by default",
+    ),
+    GYRO_ENV_ID_V3: (
+        "v3",
+        "redundant skewed gyros, noise levels unknown to the filter (gyro_noise_levels): v2's "
+        "observation with the innovations' lag-1 correlation",
+    ),
+}
+"""Each id's observation version and description (one environment class, one per version)."""
+for _env_id, (_observation, _description) in VERSIONS.items():
+    register_environment(
+        Environment(
+            id=_env_id,
+            entry_point="envs.redundant_gyros.env:RedundantGyroCalibrationEnv",
+            problem="redundant_gyros",
+            rewards=GYRO_REWARDS,
+            observation_size=OBS_SIZES[_observation],
+            check_scenario=check_scenario,
+            observation=_observation,
+            vector_entry_point=VECTOR_ENTRY_POINT,
+            sb3_vec_env=SB3_VEC_ENV,
+            description=_description,
+        )
     )
-)
-register_environment(
-    Environment(
-        id=GYRO_ENV_ID_V1,
-        entry_point="envs.redundant_gyros.env:RedundantGyroCalibrationEnv",
-        problem="redundant_gyros",
-        rewards=GYRO_REWARDS,
-        observation_size=OBS_SIZES["v1"],
-        check_scenario=check_scenario,
-        observation="v1",
-        vector_entry_point=VECTOR_ENTRY_POINT,
-        sb3_vec_env=SB3_VEC_ENV,
-        description=(
-            "redundant skewed gyros, unknown fault onset and drifting coefficients; "
-            "no clock in the observation"
-        ),
-    )
-)
-register_environment(
-    Environment(
-        id=GYRO_ENV_ID_V2,
-        entry_point="envs.redundant_gyros.env:RedundantGyroCalibrationEnv",
-        problem="redundant_gyros",
-        rewards=GYRO_REWARDS,
-        observation_size=OBS_SIZES["v2"],
-        check_scenario=check_scenario,
-        observation="v2",
-        vector_entry_point=VECTOR_ENTRY_POINT,
-        sb3_vec_env=SB3_VEC_ENV,
-        description=(
-            "redundant skewed gyros as v1, without the κ = 1 copy's likelihood gain in the "
-            "observation; oracle reward by default"
-        ),
-    )
-)
 
 __all__ = [
     "GYRO_ENV_ID",
     "GYRO_ENV_ID_V1",
     "GYRO_ENV_ID_V2",
+    "GYRO_ENV_ID_V3",
     "GYRO_REWARDS",
     "OBS_SIZE",
     "OBS_SIZES",

@@ -102,12 +102,6 @@ OBS_SIZES = {name: GYRO_OBSERVATIONS[name].size for name in GYRO_OBSERVATIONS}
 """Entries of the observation of each version."""
 OBS_SIZE = OBS_SIZES["v0"]
 """Entries of the v0 observation (table above)."""
-DEFAULT_SCENARIOS = {
-    "v0": "five_gyros_s_bias",
-    "v1": "five_gyros_onset_drift",
-    "v2": "five_gyros_onset_drift",
-}
-"""The scenario of each version when none is given."""
 GYRO_CURVES = ("UKF σ / σ₀", "|error| / σ₀")
 """The curves of the rendered frames: RMS over ``[b, λ, δ_u, δ_v]``, each over its prior sd."""
 
@@ -164,8 +158,6 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         self.observation = observation
         self.obs_size = OBS_SIZES[observation]
         self.render_mode = render_mode
-        if scenario is None:
-            scenario = DEFAULT_SCENARIOS[observation]
         self.episodes = ep = GyroEpisodes(
             1, scenario, action_type, reward, overrides, period_s, observation
         )

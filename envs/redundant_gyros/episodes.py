@@ -30,6 +30,14 @@ from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE
 from qkf.redundant_gyros.ukf_compiled import SUMS, CompiledSetup, run_periods
 
+DEFAULT_SCENARIOS = {
+    "v0": "five_gyros_s_bias",
+    "v1": "five_gyros_onset_drift",
+    "v2": "five_gyros_onset_drift",
+    "v3": "gyro_noise_levels",
+}
+"""The scenario of each observation version when none is given."""
+
 
 @dataclass(frozen=True)
 class GyroStep:
@@ -48,16 +56,16 @@ class GyroEpisodes:
     """N calibration episodes of one gyro config (module docstring).
 
     ``scenario``: a gyro preset name, a config path or a :class:`GyrosConfig` (with
-    ``overrides``); ``reward``: a name of :data:`GYRO_REWARDS` (None: ``likelihood`` where the
-    observation reads the κ = 1 copy, else ``oracle``); ``observation``: a name of
-    :data:`GYRO_OBSERVATIONS`; ``period_s``: the decision period (default
-    ``environment.period_s``).
+    ``overrides``; None: the observation version's :data:`DEFAULT_SCENARIOS`); ``reward``: a
+    name of :data:`GYRO_REWARDS` (None: ``likelihood`` where the observation reads the κ = 1
+    copy, else ``oracle``); ``observation``: a name of :data:`GYRO_OBSERVATIONS`;
+    ``period_s``: the decision period (default ``environment.period_s``).
     """
 
     def __init__(
         self,
         n: int,
-        scenario: str | Path | GyrosConfig,
+        scenario: str | Path | GyrosConfig | None,
         action_type: str = "discrete",
         reward: str | None = None,
         overrides: list[str] | None = None,
@@ -73,6 +81,8 @@ class GyroEpisodes:
             reward = "likelihood" if GYRO_OBSERVATIONS[observation].uses_nominal else "oracle"
         if reward not in GYRO_REWARDS:
             raise ValueError(f"unknown reward {reward!r}; known: {', '.join(GYRO_REWARDS)}")
+        if scenario is None:
+            scenario = DEFAULT_SCENARIOS.get(observation, DEFAULT_SCENARIOS["v0"])
         self.cfg = (
             scenario if isinstance(scenario, GyrosConfig) else load_config(scenario, overrides)
         )
@@ -150,7 +160,7 @@ class GyroEpisodes:
         self.k = k1
         failed = self.failed.copy()
         rows = np.arange(self.n)
-        nis, ll, ll_nom, error, error_sq = self._sums.T
+        nis, ll, ll_nom, error, error_sq, lag1 = self._sums.T
         # a κ = 1 copy that fails where the agent's filter does not: no gain either way
         gain = ll - np.where(self._nominal_failed, ll, ll_nom) if self.needs_nominal else None
         dt = self.sampler.dt[np.minimum(k0, self.n_steps - 1)]
@@ -172,6 +182,7 @@ class GyroEpisodes:
             p=self.p,
             prior_sd=self.setup.p0_sd,
             nis=nis / per_step,
+            lag1=lag1 / np.maximum(steps - 1, 1),
             loglik_gain_per_step=np.full(self.n, np.nan) if gain is None else gain / per_step,
             elapsed=k1 / self.n_steps,
             rate_norm=np.linalg.norm(self.rate[rows, last], axis=1),
@@ -196,4 +207,4 @@ class GyroEpisodes:
         return None if np.isnan(v) else v
 
 
-__all__ = ["GyroEpisodes", "GyroStep"]
+__all__ = ["DEFAULT_SCENARIOS", "GyroEpisodes", "GyroStep"]

@@ -6,16 +6,21 @@ no truth) for a whole batch of episodes at once; an entry names the quantities i
 uses them. ``uses_nominal`` says whether it reads the likelihood gain over a κ = 1 copy of the
 filter, which then runs beside the agent's (the only reason that copy exists).
 
-=====  ===================================================  ======  ======  ======
-name   entry                                                  v0      v1      v2
-=====  ===================================================  ======  ======  ======
-sd     ``log10(σ/σ₀)`` of b, λ, δ_u, δ_v (4 entries)         0–3     0–3     0–3
-nis    mean NIS ``ν²/S`` over the period                     4       4       4
-gain   log-likelihood gain over a κ = 1 copy, per step       5       5       –
-time   elapsed fraction of the episode                       6       –       –
-rate   ``|ω̂_H|`` of the healthy triad at the period's end     7       6       5
-kappa  κ position in [0, 1] on the action scale              8       7       6
-=====  ===================================================  ======  ======  ======
+=====  ===================================================  ======  ======  ======  ======
+name   entry                                                  v0      v1      v2      v3
+=====  ===================================================  ======  ======  ======  ======
+sd     ``log10(σ/σ₀)`` of b, λ, δ_u, δ_v (4 entries)         0–3     0–3     0–3     0–3
+nis    mean NIS ``ν²/S`` over the period                     4       4       4       4
+lag1   mean lag-1 product of ``ν/√S`` over the period        –       –       –       5
+gain   log-likelihood gain over a κ = 1 copy, per step       5       5       –       –
+time   elapsed fraction of the episode                       6       –       –       –
+rate   ``|ω̂_H|`` of the healthy triad at the period's end     7       6       5       6
+kappa  κ position in [0, 1] on the action scale              8       7       6       7
+=====  ===================================================  ======  ======  ======  ======
+
+``lag1`` separates the two noise levels the NIS confounds: a white noise above the assumed
+raises the NIS but leaves the normalised innovations white (``lag1`` ≈ 0); coefficients that
+move faster than the filter's process noise make them correlated (``lag1`` > 0).
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ class GyroObservationInputs:
     p: np.ndarray  # (N, 4, 4) the UKF's covariance at the period's end
     prior_sd: np.ndarray  # (4,) σ₀
     nis: np.ndarray  # (N,) mean ν²/S over the period
+    lag1: np.ndarray  # (N,) mean of r_i r_{i−1}, r = ν/√S, over the period
     loglik_gain_per_step: np.ndarray  # (N,) (ℓ − ℓ_nominal) / steps (NaN without the copy)
     elapsed: np.ndarray  # (N,) elapsed fraction of the episode
     rate_norm: np.ndarray  # (N,) |ω̂_H| at the period's last epoch, deg/s
@@ -50,13 +56,14 @@ def _sd(o: GyroObservationInputs) -> np.ndarray:
 PARTS: dict[str, Callable[[GyroObservationInputs], np.ndarray]] = {
     "sd": _sd,
     "nis": lambda o: o.nis[:, None],
+    "lag1": lambda o: o.lag1[:, None],
     "gain": lambda o: o.loglik_gain_per_step[:, None],
     "time": lambda o: o.elapsed[:, None],
     "rate": lambda o: o.rate_norm[:, None],
     "kappa": lambda o: o.position[:, None],
 }
 """The quantities an observation is made of, each (N, entries)."""
-PART_SIZES = {"sd": 4, "nis": 1, "gain": 1, "time": 1, "rate": 1, "kappa": 1}
+PART_SIZES = {"sd": 4, "nis": 1, "lag1": 1, "gain": 1, "time": 1, "rate": 1, "kappa": 1}
 
 
 @dataclass(frozen=True)
@@ -92,4 +99,10 @@ GYRO_OBSERVATIONS.register(
 GYRO_OBSERVATIONS.register(
     "v2",
     GyroObservation(("sd", "nis", "rate", "kappa"), "v1 without the κ = 1 copy's likelihood gain"),
+)
+GYRO_OBSERVATIONS.register(
+    "v3",
+    GyroObservation(
+        ("sd", "nis", "lag1", "rate", "kappa"), "v2 with the innovations' lag-1 correlation"
+    ),
 )

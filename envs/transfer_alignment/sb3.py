@@ -6,25 +6,24 @@ The same batched episodes as :class:`envs.transfer_alignment.vector.BatchedTrans
 ``info["terminal_observation"]`` (with ``info["TimeLimit.truncated"]`` for the time limit).
 Sub-environment ``i`` seeded with ``s`` draws the same episodes as ``TransferAlignmentEnv``
 reset with seed ``s + i``. What ``qkf train`` trains on for these ids
-(``envs.ENVIRONMENTS[id].sb3_vec_env``). Importing this module imports Stable-Baselines3 (and
-torch), which ``import envs`` does not.
+(``envs.ENVIRONMENTS[id].sb3_vec_env``). The SB3 machinery is
+:class:`envs.common.sb3_batched.BatchedSB3VecEnv`'s. Importing this module imports
+Stable-Baselines3 (and torch), which ``import envs`` does not.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
-from gymnasium.utils import seeding
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from envs.common.sb3_batched import BatchedSB3VecEnv
 from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver
 from qkf.transfer_alignment.config import Config
 
 
-class BatchedTransferAlignmentSB3Env(VecEnv):
+class BatchedTransferAlignmentSB3Env(BatchedSB3VecEnv):
     """N transfer-alignment episodes in one batched filter, as an SB3 ``VecEnv``."""
 
     def __init__(
@@ -40,68 +39,18 @@ class BatchedTransferAlignmentSB3Env(VecEnv):
         base: str | None = None,
         expert: str | None = None,
     ) -> None:
-        self._driver = EpisodeDriver(
+        driver = EpisodeDriver(
             num_envs, scenario, action_type, reward, overrides, period_s, observation,
             controls=controls, base=base, expert=expert,
         )  # fmt: skip
-        self.cfg = self._driver.cfg
-        self.actions = self._driver.actions
-        self.render_mode = None
-        super().__init__(num_envs, self._driver.observation_space, self._driver.action_space)
-        self._actions: np.ndarray | None = None
-
-    def reset(self) -> np.ndarray:
-        for i, s in enumerate(self._seeds):
-            if s is not None:
-                self._driver.rngs[i] = seeding.np_random(s)[0]
-        self._reset_seeds()
-        return self._driver.reset_envs(np.arange(self.num_envs))
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        if self._actions is None:
-            raise RuntimeError("step_async must come before step_wait")
-        acts = self._actions.reshape(self.num_envs, -1)
-        vector = self.actions.action_type == "continuous" or self._driver.controls is not None
-        out = self._driver.step(acts if vector else acts[:, 0])
-        obs = out.obs.copy()
-        dones = out.terminated | out.truncated
-        infos: list[dict[str, Any]] = []
-        for i in range(self.num_envs):
-            info: dict[str, Any] = {"kappa": out.kappa[i], "errors": out.errors[i]}
-            if dones[i]:
-                info["terminal_observation"] = out.obs[i]
-                info["TimeLimit.truncated"] = bool(out.truncated[i])
-                info["diverged"] = bool(out.terminated[i])
-            infos.append(info)
-        ended = np.flatnonzero(dones)
-        if ended.size:  # the episodes that ended start over, together
-            obs[ended] = self._driver.reset_envs(ended)
-        return obs, out.reward.astype(np.float32), dones, infos
+        self.cfg = driver.cfg
+        self.actions = driver.actions
+        vector = driver.actions.action_type == "continuous" or driver.controls is not None
+        super().__init__(
+            driver, num_envs, driver.observation_space, driver.action_space, vector_actions=vector
+        )
 
     def expert_actions(self) -> np.ndarray:
         """The expert's actions for every episode's next period (``expert=``, v4):
         :mod:`envs.transfer_alignment.experts`, what :func:`agents.imitation.dagger` asks."""
-        return self._driver.expert_actions()
-
-    def close(self) -> None:
-        return None
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **kwargs: Any
-    ) -> list[Any]:
-        raise NotImplementedError("the sub-environments are rows of one batch, not objects")
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None] * self.num_envs
+        return np.asarray(self._driver.expert_actions())

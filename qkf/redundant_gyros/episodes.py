@@ -19,8 +19,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
-from qkf.core.units import DEG
-from qkf.redundant_gyros.config import GyrosConfig, OnsetDrift
+from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for
 from qkf.redundant_gyros.scenario import (
@@ -29,6 +28,7 @@ from qkf.redundant_gyros.scenario import (
     first_epoch,
     log_uniform,
     onset_generator,
+    onset_sds,
     truth,
 )
 
@@ -118,21 +118,6 @@ class EpisodeSampler:
             onset_s=onset_s,
             t0_s=float(t[s]),
         )
-
-
-def onset_sds(spec: OnsetDrift) -> tuple[np.ndarray, np.ndarray]:
-    """The step's sd and the walk's sd per √s of ``[b, λ, δ_u, δ_v]`` (internal units)."""
-    st, dr = spec.step, spec.drift
-    step_sd = np.array([st.bias_deg_s, st.scale, st.delta_u_deg * DEG, st.delta_v_deg * DEG])
-    rate_sd = np.array(
-        [
-            dr.bias_deg_s_per_sqrt_s,
-            dr.scale_per_sqrt_s,
-            dr.delta_u_deg_per_sqrt_s * DEG,
-            dr.delta_v_deg_per_sqrt_s * DEG,
-        ]
-    )
-    return step_sd, rate_sd
 
 
 # numba's Generator draws the stream of numpy's (the same algorithms; the sampler's test holds

@@ -141,16 +141,8 @@ def log_uniform(rng: np.random.Generator, bounds: tuple[float, float] | None) ->
     return float(np.exp(rng.uniform(np.log(bounds[0]), np.log(bounds[1]))))
 
 
-def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> OnsetDraw:
-    """Draw the onset time ``U(onset_s)``, the step ``N(0, diag(step²))`` and the walk: from its
-    first epoch ``k₀`` (the onset's, or 0 with ``drift_from: start``) on, increments
-    ``N(0, σ² Δt_k)``, so the offset at epoch k has variance ``σ² (t_k − t_{k₀})``. The draws
-    are taken in this fixed order whatever the sds, so a sd of 0 leaves the others unchanged.
-    Then, only if the spec asks for them, the noise levels: the drift scale (log-uniform, it
-    multiplies the walk's increments) and the white-noise factor; a spec without them draws
-    exactly what it drew before they existed."""
-    lo, hi = spec.onset_s
-    onset = float(rng.uniform(lo, hi))
+def onset_sds(spec: OnsetDrift) -> tuple[np.ndarray, np.ndarray]:
+    """The step's sd and the walk's sd per √s of ``[b, λ, δ_u, δ_v]`` (internal units)."""
     st, dr = spec.step, spec.drift
     step_sd = np.array([st.bias_deg_s, st.scale, st.delta_u_deg * DEG, st.delta_v_deg * DEG])
     rate_sd = np.array(
@@ -161,6 +153,20 @@ def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> Ons
             dr.delta_v_deg_per_sqrt_s * DEG,
         ]
     )
+    return step_sd, rate_sd
+
+
+def draw_onset(spec: OnsetDrift, t: np.ndarray, rng: np.random.Generator) -> OnsetDraw:
+    """Draw the onset time ``U(onset_s)``, the step ``N(0, diag(step²))`` and the walk: from its
+    first epoch ``k₀`` (the onset's, or 0 with ``drift_from: start``) on, increments
+    ``N(0, σ² Δt_k)``, so the offset at epoch k has variance ``σ² (t_k − t_{k₀})``. The draws
+    are taken in this fixed order whatever the sds, so a sd of 0 leaves the others unchanged.
+    Then, only if the spec asks for them, the noise levels: the drift scale (log-uniform, it
+    multiplies the walk's increments) and the white-noise factor; a spec without them draws
+    exactly what it drew before they existed."""
+    lo, hi = spec.onset_s
+    onset = float(rng.uniform(lo, hi))
+    step_sd, rate_sd = onset_sds(spec)
     step = rng.standard_normal(4) * step_sd
     eps = rng.standard_normal((t.size, 4))
     scale = log_uniform(rng, spec.drift_scale)

@@ -221,10 +221,12 @@ def run_span(
     return total
 
 
-SUMS = ("nis", "loglik", "loglik_nominal", "error", "error_sq")
+SUMS = ("nis", "loglik", "loglik_nominal", "error", "error_sq", "lag1")
 """The per-period sums :func:`run_periods` returns per episode, in this order: ``Σ ν²/S``,
-``Σ ℓ`` and the κ = 1 copy's ``Σ ℓ`` with ``ℓ = −½ (ν²/S + log S)``, ``Σ ‖(x̂ − x) / σ₀‖``
-and ``Σ ‖(x̂ − x) / σ₀‖²``."""
+``Σ ℓ`` and the κ = 1 copy's ``Σ ℓ`` with ``ℓ = −½ (ν²/S + log S)``, ``Σ ‖(x̂ − x) / σ₀‖``,
+``Σ ‖(x̂ − x) / σ₀‖²`` and ``Σ_{i ≥ 1} r_i r_{i−1}`` with ``r = ν/√S`` the normalised
+innovations of the period (their lag-1 products: about 0 when the filter's process noise is
+right whatever the white noise, positive when the coefficients move faster than it assumes)."""
 
 
 @nb.njit(cache=True)
@@ -269,6 +271,7 @@ def _period_row(
     steps = k1[b] - k0[b]
     if failed[b]:
         return
+    r_prev = 0.0
     for i in range(steps):
         k = k0[b] + i
         y, s = ukf_step(
@@ -280,6 +283,10 @@ def _period_row(
             return
         sums[b, 0] += y * y / s
         sums[b, 1] += -0.5 * (y * y / s + np.log(s))
+        r = y / np.sqrt(s)
+        if i > 0:
+            sums[b, 5] += r * r_prev
+        r_prev = r
         norm2 = 0.0
         for j in range(4):
             e = x[b, j] - truth[b, k, j]
@@ -338,7 +345,7 @@ def run_periods(
     failed episode is not stepped.
 
     Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
-    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 5), the :data:`SUMS` over the
+    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 6), the :data:`SUMS` over the
     epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
     ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
     ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
