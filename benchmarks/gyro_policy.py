@@ -10,8 +10,9 @@ environment (observation ``--observation``, v2 by default, stacked ``--frame-sta
 training); its criterion is the hindsight's ``J``, the settled mean square of the four
 calibrated states over their prior sd (:mod:`qkf.redundant_gyros.hindsight`), accumulated from
 the environment's own per-epoch errors. The same episodes are scored for every constant κ of
-the action set (:func:`~qkf.redundant_gyros.hindsight.constant_scores`) and for the innovation-
-based adaptive κ (:mod:`qkf.redundant_gyros.nis_adaptive`), tuned on ``--tune-episodes``
+the action set (:func:`~qkf.redundant_gyros.hindsight.constant_scores`), for the tuned clock
+(:mod:`qkf.redundant_gyros.clock`) and for the innovation-based adaptive κ
+(:mod:`qkf.redundant_gyros.nis_adaptive`), both tuned on ``--tune-episodes``
 episodes from ``--tune-seed`` (tuning seeds, not the judged ones). Printed: policy ÷ best
 constant (pooled over the episodes) and policy ÷ level-informed (each episode's own best
 constant), as the RMS ratio over episodes with a paired percentile bootstrap 95 % interval, the
@@ -30,6 +31,7 @@ from stable_baselines3.common.vec_env import VecFrameStack
 
 from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
+from qkf.redundant_gyros import clock as gyro_clock
 from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros import nis_adaptive
 from qkf.redundant_gyros.config import load_config
@@ -98,15 +100,20 @@ def main() -> None:
     rule, _ = nis_adaptive.tune(cfg, tune_seeds)
     adaptive = nis_adaptive.run_rule(cfg, list(seeds), rule)
     print(f"nis-adaptive tuned on seeds {args.tune_seed}…: {rule}")
+    clock, _ = gyro_clock.tune(cfg, tune_seeds)
+    clocked = np.array([gyro_clock.score(hs.episode(cfg, int(s)), clock) for s in seeds])
+    print(f"clock tuned on the same seeds: {clock}")
     print("| A ÷ B | RMS ratio [95 %] | median per episode | P(A wins) |")
     print("|---|---|---|---|")
     print(ratio_row("level-informed ÷ best constant", const.min(axis=1), const[:, best], counts))
     print(ratio_row("nis-adaptive ÷ best constant", adaptive, const[:, best], counts))
+    print(ratio_row("clock ÷ best constant", clocked, const[:, best], counts))
     for path in args.models:
         j, chosen = policy_scores(path, args.config, seeds, args.frame_stack, args.observation)
         print(ratio_row(f"`{path}` ÷ best constant", j, const[:, best], counts))
         print(ratio_row(f"`{path}` ÷ level-informed", j, const.min(axis=1), counts))
         print(ratio_row(f"`{path}` ÷ nis-adaptive", j, adaptive, counts))
+        print(ratio_row(f"`{path}` ÷ clock", j, clocked, counts))
         values, freq = np.unique(chosen, return_counts=True)
         top = ", ".join(
             f"{v:.3g}: {f / chosen.size:.0%}" for v, f in zip(values, freq, strict=True)
