@@ -45,7 +45,7 @@ def run_constant(cfg, seeds: np.ndarray, kappa: float, observation: str):  # typ
     for _ in range(e.episode_steps):
         out = e.run(np.full(seeds.size, kappa), np.full(seeds.size, 0.5))
         obs.append(out.obs)
-        ll.append(e._sums[:, LOGLIK].copy())
+        ll.append(e.sums[:, LOGLIK].copy())
     return np.array(obs), np.array(ll)
 
 

@@ -54,15 +54,12 @@ def policy_scores(
     settled = np.array([hs.episode(cfg, int(s)).settled_from for s in seeds])
     total = np.zeros(n)
     kappas = []
-    inv_sd = 1.0 / episodes.setup.p0_sd
     for _ in range(episodes.episode_steps):
         k0 = episodes.k.copy()
         action, _ = model.predict(obs, deterministic=True)
         obs, _, _, _ = env.step(action)
         kappas.append(episodes.actions.kappas[np.asarray(action).reshape(n)])
-        epoch = k0[:, None] + np.arange(episodes.period)[None, :]
-        sq = np.sum((episodes._err * inv_sd) ** 2, axis=2)  # (n, P), NaN past the end
-        total += np.nansum(np.where(epoch >= settled[:, None], sq, 0.0), axis=1)
+        total += episodes.settled_square(k0, settled)
     norm = (episodes.n_steps - settled) * 4.0
     return total / norm, np.array(kappas).T
 

@@ -330,9 +330,9 @@ def test_nominal_copy_runs_only_where_read() -> None:
         np.testing.assert_array_equal(tr1, tr2)
         gains.append(o1[:, gain])
         # v2 with oracle: no copy ran (its sum stays 0); v1 and v2 with likelihood: it did
-        np.testing.assert_array_equal(v2.episodes._sums[:, nominal_sum], 0.0)
+        np.testing.assert_array_equal(v2.episodes.sums[:, nominal_sum], 0.0)
         for e in (v1, v2_lik):
-            assert np.all(e.episodes._sums[~restarting, nominal_sum] != 0.0)
+            assert np.all(e.episodes.sums[~restarting, nominal_sum] != 0.0)
         restarting = te1 | tr1
     assert np.any(np.array(gains) != 0.0)  # the entry v2 leaves out carries something
 

@@ -2,10 +2,10 @@
 single environment, the Gymnasium vector environment and the SB3 adapter share
 (docs/redundant_gyros.md, "Environment").
 
-One :class:`GyroEpisodes` holds the episodes' inputs (drawn by
-:class:`~qkf.redundant_gyros.episodes.EpisodeSampler`), each filter's state and its position,
-and runs a decision period of every episode in one call of
-:func:`~qkf.redundant_gyros.ukf_compiled.run_periods` (parallel over episodes). Episode ``i``
+One :class:`GyroEpisodes` is a :class:`~qkf.redundant_gyros.batched_ukf.BatchedUKF` (the
+episodes' inputs, drawn by :class:`~qkf.redundant_gyros.episodes.EpisodeSampler`, each
+filter's state and its position; a decision period of every episode in one compiled call,
+parallel over episodes) with the environments' actions, observations and rewards. Episode ``i``
 draws its simulation seed from its own generator ``rngs[i]``, so an episode is the same in a
 batch of 64 as alone. The κ = 1 copy behind the likelihood gain runs only when the
 observation or the reward reads it.
@@ -25,10 +25,10 @@ from envs.common.actions import ActionMap
 from envs.common.bounds import DIVERGENCE_REWARD, observation_box
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS, GyroObservationInputs
 from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod
+from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.config import GyrosConfig, load_config
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE
-from qkf.redundant_gyros.ukf_compiled import SUMS, CompiledSetup, run_periods
 
 DEFAULT_SCENARIOS = {
     "v0": "five_gyros_s_bias",
@@ -52,8 +52,10 @@ class GyroStep:
     t_s: np.ndarray  # (N,) time of the run at the period's last epoch, s
 
 
-class GyroEpisodes:
-    """N calibration episodes of one gyro config (module docstring).
+class GyroEpisodes(BatchedUKF):
+    """N calibration episodes of one gyro config (module docstring): a
+    :class:`~qkf.redundant_gyros.batched_ukf.BatchedUKF` with actions, observations and
+    rewards.
 
     ``scenario``: a gyro preset name, a config path or a :class:`GyrosConfig` (with
     ``overrides``; None: the observation version's :data:`DEFAULT_SCENARIOS`); ``reward``: a
@@ -86,53 +88,32 @@ class GyroEpisodes:
         self.cfg = (
             scenario if isinstance(scenario, GyrosConfig) else load_config(scenario, overrides)
         )
-        self.sampler = sampler = EpisodeSampler(self.cfg)
-        self.unit, self.setup, self.t = sampler.unit, sampler.setup, sampler.t
-        self.target = sampler.target
-        sc = self.cfg.scenario
+        sampler = EpisodeSampler(self.cfg)
+        self.unit, self.t, self.target = sampler.unit, sampler.t, sampler.target
         period = self.cfg.environment.period_s if period_s is None else period_s
         if not (np.isfinite(period) and period > 0.0):
             raise ValueError(f"period_s must be positive, got {period!r}")
-        self.period = max(1, round(period / sc.dt_s))
-        self.n, self.n_steps = n, sampler.n_epochs  # episodes, calibrated epochs per episode
+        self.reward = GYRO_REWARDS[reward]
+        steps = max(1, round(period / self.cfg.scenario.dt_s))
+        super().__init__(sampler, n, steps, keep_cov=self.reward.uses_cov)
         self.episode_steps = -(-self.n_steps // self.period)
         self.actions = ActionMap(np.asarray(self.cfg.environment.actions.values()), action_type)
         self.action_space: spaces.Space[Any] = self.actions.space
         self.observation = GYRO_OBSERVATIONS[observation]
         self.observation_space = observation_box(self.observation.size)
-        self.reward = GYRO_REWARDS[reward]
         self.needs_nominal = self.observation.uses_nominal or self.reward.uses_nominal
         kappas = self.actions.kappas
         self.start_position = self.cfg.environment.actions.nominal_index() / (kappas.size - 1)
-        self.compiled = CompiledSetup.of(self.setup)
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
-        k, p = self.n_steps, self.period
-        self.z, self.rate = np.zeros((n, k)), np.zeros((n, k, 3))
-        self.truth = np.zeros((n, k, 4))
-        self.onset_s = np.full(n, np.nan)
-        self.x, self.p = np.zeros((n, 4)), np.zeros((n, 4, 4))
-        self.failed = np.zeros(n, dtype=bool)
-        self.k = np.zeros(n, dtype=np.int64)  # next epoch of each episode
-        self._inv_sd = 1.0 / self.setup.p0_sd
-        self._sums = np.zeros((n, len(SUMS)))
-        self._err = np.empty((n, p, 4))
-        self._cov = np.empty((n, p, 4, 4) if self.reward.uses_cov else (n, 1, 4, 4))
-        self._nominal_failed = np.zeros(n, dtype=bool)
 
     def reset_envs(self, rows: np.ndarray) -> np.ndarray:
         """Start episodes ``rows`` anew, each drawing its simulation seed from its own
         generator; their first observations (len(rows), size): zeros but the κ position."""
         rows = np.asarray(rows, dtype=np.int64)
-        s = self.setup
         seeds = [int(self.rngs[i].integers(2**63 - 1)) for i in rows]
         for i, seed in zip(rows, seeds, strict=True):
-            ep = self.sampler.draw(seed)
-            self.z[i], self.rate[i], self.truth[i] = ep.z, ep.rate, ep.truth
-            self.onset_s[i] = np.nan if ep.onset_s is None else ep.onset_s
-        self.x[rows] = s.x0
-        self.p[rows] = np.diag(s.p0_sd**2)
-        self.failed[rows] = False
-        self.k[rows] = 0
+            self.load(int(i), self.sampler.draw(seed))
+        self.restart(rows)
         obs = np.zeros((rows.size, self.observation.size), dtype=np.float32)
         obs[:, -1] = self.start_position
         return obs
@@ -144,30 +125,21 @@ class GyroEpisodes:
     def run(self, kappa: np.ndarray, position: np.ndarray) -> GyroStep:
         """One decision period of every episode with ``kappa`` (N,) (at ``position`` (N,) on
         the action scale, for the observation)."""
-        k0 = self.k.copy()
-        k1 = np.minimum(k0 + self.period, self.n_steps)
-        steps = k1 - k0
+        k0, steps = self.advance(kappa, self.needs_nominal)
+        k1 = k0 + steps
         # an episode past its end (the vector env's autoreset steps it before restarting it, and
         # drops what this step says of it) runs no epoch: divide its zero sums by 1, not 0
         per_step = np.maximum(steps, 1)
-        c = self.compiled
-        run_periods(
-            self.x, self.p, self.z, self.rate, self.sampler.dt, self.truth, self._inv_sd,
-            np.asarray(kappa, dtype=float), k0, k1, self.needs_nominal, self.reward.uses_cov,
-            *c.geometry, c.weights, self.failed, self._nominal_failed, self._sums, self._err,
-            self._cov,
-        )  # fmt: skip
-        self.k = k1
         failed = self.failed.copy()
         rows = np.arange(self.n)
-        nis, ll, ll_nom, error, error_sq, lag1 = self._sums.T
+        nis, ll, ll_nom, error, error_sq, lag1 = self.sums.T
         # a κ = 1 copy that fails where the agent's filter does not: no gain either way
-        gain = ll - np.where(self._nominal_failed, ll, ll_nom) if self.needs_nominal else None
+        gain = ll - np.where(self.nominal_failed, ll, ll_nom) if self.needs_nominal else None
         dt = self.sampler.dt[np.minimum(k0, self.n_steps - 1)]
         period = GyroPeriod(
             loglik_gain=np.full(self.n, np.nan) if gain is None else gain,
-            errors=self._err,
-            cov=self._cov if self.reward.uses_cov else None,
+            errors=self.err,
+            cov=self.cov if self.reward.uses_cov else None,
             prior_sd=self.setup.p0_sd,
             steps=steps,
             dt=dt,
@@ -197,7 +169,7 @@ class GyroEpisodes:
             terminated=failed,
             truncated=(k1 >= self.n_steps) & ~failed,
             kappa=np.asarray(kappa, dtype=float),
-            errors=self._err[rows, np.maximum(steps - 1, 0)] / DISPLAY_SCALE,
+            errors=self.err[rows, np.maximum(steps - 1, 0)] / DISPLAY_SCALE,
             t_s=self.t[self.target.start + last],
         )
 

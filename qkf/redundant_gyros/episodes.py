@@ -7,8 +7,8 @@ true coefficients and the steps. :class:`EpisodeSampler` computes once per confi
 episode shares (the body rate, the faults' truth, the noise-free readings of the gyros whose
 coefficients do not depend on the draw, the steps), and per draw only the noise and, with an
 ``onset``, the onset gyro's coefficients and readings. The result equals the simulation's
-(``tests/test_gyro_episodes.py``); the environments and the hindsight search both draw their
-episodes here, so they see the same ones.
+(``tests/test_gyro_batched_env.py``, ``tests/test_gyro_noise_levels.py``); the environments
+and the hindsight search both draw their episodes here, so they see the same ones.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ rule smooths the period's mean NIS ``n_t`` in the log domain and scales κ by it
 with the gain ``γ``, the half-life ``h`` and the start ``κ_0`` its settings and ``[κ_min,
 κ_max]`` the action set's range. It is the scalar form of a Sage–Husa / covariance-matching
 update of Q, with κ the one factor a gyro policy sets too. The filter is the compiled UKF of
-the environments (:func:`~qkf.redundant_gyros.ukf_compiled.run_periods`) on the environments'
+the environments (:class:`~qkf.redundant_gyros.batched_ukf.BatchedUKF`) on the environments'
 episodes (:class:`~qkf.redundant_gyros.episodes.EpisodeSampler`), so its criterion ``J`` (the
 hindsight's: settled mean square of the four states over their prior sd) is comparable with a
 policy's on the same seeds. :func:`tune` picks the settings on tuning seeds by a grid of at
@@ -28,9 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.redundant_gyros import hindsight as hs
+from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.episodes import EpisodeSampler
-from qkf.redundant_gyros.ukf_compiled import SUMS, CompiledSetup, run_periods
+from qkf.redundant_gyros.ukf_compiled import SUMS
 
 
 @dataclass(frozen=True)
@@ -52,28 +53,20 @@ its tuning episodes."""
 
 @dataclass(frozen=True)
 class EpisodeBatch:
-    """The episodes of some environment seeds, stacked for the compiled UKF."""
+    """The episodes of some environment seeds, loaded into one batched UKF, and where each
+    one's judged window starts."""
 
     cfg: GyrosConfig
-    sampler: EpisodeSampler
-    z: np.ndarray  # (N, K)
-    rate: np.ndarray  # (N, K, 3)
-    truth: np.ndarray  # (N, K, 4)
+    ukf: BatchedUKF
     settled: np.ndarray  # (N,) first judged epoch
-    period: int
 
     @classmethod
     def of(cls, cfg: GyrosConfig, seeds: Sequence[int]) -> EpisodeBatch:
         eps = [hs.episode(cfg, int(s)) for s in seeds]
-        return cls(
-            cfg,
-            EpisodeSampler(cfg),
-            np.stack([e.inputs.z for e in eps]),
-            np.stack([e.inputs.rate for e in eps]),
-            np.stack([e.inputs.truth for e in eps]),
-            np.array([e.settled_from for e in eps]),
-            eps[0].period,
-        )
+        ukf = BatchedUKF(EpisodeSampler(cfg), len(eps), eps[0].period)
+        for row, e in enumerate(eps):
+            ukf.load(row, e.inputs)
+        return cls(cfg, ukf, np.array([e.settled_from for e in eps]))
 
 
 def run_rule(cfg: GyrosConfig, seeds: Sequence[int], rule: NisRule) -> np.ndarray:
@@ -84,40 +77,24 @@ def run_rule(cfg: GyrosConfig, seeds: Sequence[int], rule: NisRule) -> np.ndarra
 
 def run_rule_on(b: EpisodeBatch, rule: NisRule) -> np.ndarray:
     """:func:`run_rule` on episodes drawn before."""
-    sampler, z, rate, truth, settled, period = b.sampler, b.z, b.rate, b.truth, b.settled, b.period
-    n, k_n = z.shape
-    setup = sampler.setup
-    compiled = CompiledSetup.of(setup)
+    ukf = b.ukf
+    ukf.restart(np.arange(ukf.n))
     kappas = np.asarray(b.cfg.environment.actions.values(), dtype=float)
     lo, hi = float(kappas.min()), float(kappas.max())
-    x = np.tile(setup.x0, (n, 1))
-    p = np.tile(np.diag(setup.p0_sd**2), (n, 1, 1))
-    failed = np.zeros(n, dtype=bool)
-    nominal_failed = np.zeros(n, dtype=bool)
-    sums = np.zeros((n, len(SUMS)))
-    err = np.empty((n, period, 4))
-    cov = np.empty((n, 1, 4, 4))
-    inv_sd = 1.0 / setup.p0_sd
     a = 1.0 - 2.0 ** (-1.0 / rule.halflife)
-    kappa = np.full(n, rule.kappa0)
-    m = np.zeros(n)
-    total = np.zeros(n)
-    for k0 in range(0, k_n, period):
-        k1 = min(k0 + period, k_n)
-        start, stop = np.full(n, k0), np.full(n, k1)
-        run_periods(
-            x, p, z, rate, sampler.dt, truth, inv_sd, kappa, start, stop, False, False,
-            *compiled.geometry, compiled.weights, failed, nominal_failed, sums, err, cov,
-        )  # fmt: skip
-        epoch = k0 + np.arange(period)
-        sq = np.sum((err * inv_sd) ** 2, axis=2)
-        total += np.nansum(np.where(epoch[None, :] >= settled[:, None], sq, 0.0), axis=1)
+    kappa = np.full(ukf.n, rule.kappa0)
+    m = np.zeros(ukf.n)
+    total = np.zeros(ukf.n)
+    nis = SUMS.index("nis")
+    for _ in range(-(-ukf.n_steps // ukf.period)):
+        k0, steps = ukf.advance(kappa)
+        total += ukf.settled_square(k0, b.settled)
         with np.errstate(divide="ignore", invalid="ignore"):
-            log_nis = np.log(sums[:, 0] / (k1 - k0))
+            log_nis = np.log(ukf.sums[:, nis] / steps)
         m = (1.0 - a) * m + a * np.where(np.isfinite(log_nis), log_nis, 0.0)
         kappa = np.clip(kappa * np.exp(rule.gamma * m), lo, hi)
-    j = total / ((k_n - settled) * 4.0)
-    return np.where(failed, np.inf, j)
+    j = total / ((ukf.n_steps - b.settled) * 4.0)
+    return np.where(ukf.failed, np.inf, j)
 
 
 def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:
