@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 import envs  # noqa: F401  (registers the ids)
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf import CalibrationUKF
 

@@ -37,7 +37,8 @@ import numpy as np
 
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.redundant_gyros import hindsight as hs
-from qkf.redundant_gyros.config import GyrosConfig, load_config
+from qkf.redundant_gyros import load_config
+from qkf.redundant_gyros.config import GyrosConfig
 
 CONTROL = "scenario.onset.onset_s=[1e12,1e12]"
 """The control: the onset (and with it the step and the onset-started drift) past the end."""

@@ -27,7 +27,7 @@ from scipy import stats
 
 from envs.redundant_gyros.episodes import GyroEpisodes
 from qkf.redundant_gyros import hindsight as hs
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.scenario import draw_onset, epochs, onset_generator
 from qkf.redundant_gyros.ukf_compiled import SUMS
 

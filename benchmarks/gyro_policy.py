@@ -33,8 +33,7 @@ from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.redundant_gyros import clock as gyro_clock
 from qkf.redundant_gyros import hindsight as hs
-from qkf.redundant_gyros import nis_adaptive
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config, nis_adaptive
 
 warnings.filterwarnings("ignore", "(?s).*out of date.*", DeprecationWarning)
 

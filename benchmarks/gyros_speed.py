@@ -21,7 +21,7 @@ import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from qkf.core.montecarlo import chunk_ids
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.fdi import Detectors, run_fdi
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for

@@ -19,7 +19,7 @@ from qkf.alignment.config import load_config as load_alignment
 from qkf.alignment.data import write_data_text
 from qkf.alignment.scenario import simulate as simulate_alignment
 from qkf.cli import app
-from qkf.redundant_gyros.config import load_config as load_gyros
+from qkf.redundant_gyros import load_config as load_gyros
 from qkf.redundant_gyros.pipeline import simulate_run
 from qkf.sca_fusion.config import load_config as load_fusion
 from qkf.sca_fusion.data import MIN_OVERLAP_FRACTION

@@ -20,7 +20,7 @@ from envs.redundant_gyros.episodes import GyroEpisodes
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS, PART_SIZES
 from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
 from envs.redundant_gyros.vector import BatchedGyroCalibrationEnv
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for

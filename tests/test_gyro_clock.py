@@ -8,7 +8,7 @@ import pytest
 
 from qkf.redundant_gyros import clock as gc
 from qkf.redundant_gyros import hindsight as hs
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 
 CFG = ["scenario.duration_s=160"]
 SEEDS = [5_000_020, 5_000_021]

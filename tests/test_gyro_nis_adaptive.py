@@ -9,8 +9,8 @@ import pytest
 
 from envs.redundant_gyros.episodes import GyroEpisodes
 from qkf.redundant_gyros import hindsight as hs
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
-from qkf.redundant_gyros.config import load_config
 from qkf.redundant_gyros.ukf import CalibrationUKF
 
 FAMILY = "gyro_noise_levels"

@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 from qkf.core.config import ConfigError
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import simulate_run

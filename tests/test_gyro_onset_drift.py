@@ -15,7 +15,8 @@ from envs.redundant_gyros import GYRO_ENV_ID_V1, RedundantGyroCalibrationEnv
 from qkf.core.config import ConfigError
 from qkf.core.units import DEG
 from qkf.redundant_gyros import hindsight as hs
-from qkf.redundant_gyros.config import OnsetDrift, load_config
+from qkf.redundant_gyros import load_config
+from qkf.redundant_gyros.config import OnsetDrift
 from qkf.redundant_gyros.pipeline import simulate_run
 from qkf.redundant_gyros.scenario import draw_onset, epochs, onset_generator
 from qkf.redundant_gyros.ukf import CalibrationUKF

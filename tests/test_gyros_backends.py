@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.benchmark import (
     METHODS,
     BenchResult,
@@ -23,7 +24,6 @@ from qkf.redundant_gyros.benchmark import (
     run_chunk,
 )
 from qkf.redundant_gyros.cli import app
-from qkf.redundant_gyros.config import load_config
 from qkf.redundant_gyros.fdi import Detectors
 from qkf.redundant_gyros.geometry import build_unit
 

@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import simulate_run
 from qkf.redundant_gyros.report import CALIBRATION_COLUMNS, FDI_COLUMNS

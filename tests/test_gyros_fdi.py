@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from qkf.redundant_gyros.config import Fault, load_config
+from qkf.redundant_gyros import load_config
+from qkf.redundant_gyros.config import Fault
 from qkf.redundant_gyros.fdi import Detectors, run_fdi
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.metrics import count_trials

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from qkf.core.config import ConfigError
-from qkf.redundant_gyros.config import load_config
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.geometry import build_unit, parity_matrix
 from qkf.redundant_gyros.threecross import feature, feature_table
 

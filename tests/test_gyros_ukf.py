@@ -9,7 +9,8 @@ import pytest
 
 from qkf.core.stats import nees
 from qkf.core.units import DEG
-from qkf.redundant_gyros.config import GyrosConfig, load_config
+from qkf.redundant_gyros import load_config
+from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.geometry import GyroUnit, build_unit, parity_matrix
 from qkf.redundant_gyros.metrics import convergence_step, convergence_tolerance, nees_band
 from qkf.redundant_gyros.pipeline import Target, fault_target, setup_for

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,9 +37,9 @@ import yaml
 
 from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.config import TrainConfig
-from agents.training.records import RUN_FILES, checkpoints, read_json
+from agents.training.records import RUN_DIRS, RUN_FILES, RunInfo, checkpoints, read_json
 from qkf.core.config import ConfigError
-from qkf.core.io import OutputError, check_output_dir
+from qkf.core.io import OutputError, atomic_write_text, check_output_dir
 
 RESUMABLE = ("total_steps", "episodes", "eval.every_steps", "torch_threads")
 """Config fields ``resume`` may change: they say how long to go on, not what is trained."""
@@ -131,6 +132,19 @@ class TrainPlan:
     @property
     def model_path(self) -> Path:
         return self.out / ("model.npz" if self.tabular else "model.zip")
+
+    def begin_run(self, info: RunInfo, fields: dict[str, Any]) -> None:
+        """The first writes of a run: the previous run's files go (if the plan says so), then
+        the config as trained and a first ``training.json`` (``complete: false``)."""
+        if self.discard:
+            for name in RUN_FILES:
+                (self.out / name).unlink(missing_ok=True)
+            for name in RUN_DIRS:
+                shutil.rmtree(self.out / name, ignore_errors=True)
+        self.out.mkdir(parents=True, exist_ok=True)
+        text = yaml.safe_dump(self.cfg.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+        atomic_write_text(self.out / "config.yaml", text)
+        info.write(**fields, complete=False)
 
 
 def _canonical(cfg: TrainConfig | dict[str, Any]) -> dict[str, Any]:

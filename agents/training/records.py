@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from agents.common.vec_env import make_vec_env
@@ -39,7 +38,6 @@ from qkf.core.io import atomic_write_bytes, atomic_write_text
 
 if TYPE_CHECKING:
     from agents.config import TrainConfig
-    from agents.training.plan import TrainPlan
 
 RUN_FILES = ("config.yaml", "training.json", "model.zip", "model.npz", "imitation.json")
 RUN_DIRS = ("checkpoints", "eval", "best", "tb")
@@ -169,21 +167,6 @@ class RunInfo:
         self.fields.update(fields)
         self.fields["resumed_from"] = self.resumed_from
         atomic_write_text(self.path, json.dumps(self.fields, indent=2, ensure_ascii=False) + "\n")
-
-
-def begin_run(plan: TrainPlan, info: RunInfo, fields: dict[str, Any]) -> None:
-    """The first writes of a run: the previous run's files go (if the plan says so), then the
-    config as trained and a first ``training.json`` (``complete: false``)."""
-    out = plan.out
-    if plan.discard:
-        for name in RUN_FILES:
-            (out / name).unlink(missing_ok=True)
-        for name in RUN_DIRS:
-            shutil.rmtree(out / name, ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(plan.cfg.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
-    atomic_write_text(out / "config.yaml", text)
-    info.write(**fields, complete=False)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -55,7 +55,6 @@ from agents.training.records import (
     HeldOutEpisodes,
     RecordSchedule,
     RunInfo,
-    begin_run,
     checkpoint_progress,
     evaluation_env,
     fresh_staging,
@@ -256,8 +255,7 @@ def run_sb3(plan: TrainPlan, progress: bool) -> Path:
     info = RunInfo(out, plan.checkpoint)
     history = EvaluationHistory.resumed(out, start) if resumed else EvaluationHistory()
     held_out = evaluation_env(cfg)
-    begin_run(
-        plan,
+    plan.begin_run(
         info,
         {
             "agent": cfg.agent,

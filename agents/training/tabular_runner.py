@@ -23,7 +23,6 @@ from agents.training.records import (
     EvaluationHistory,
     RecordSchedule,
     RunInfo,
-    begin_run,
     checkpoint_name,
     evaluate,
     evaluation_env,
@@ -49,8 +48,7 @@ def run_tabular(plan: TrainPlan, progress: bool) -> Path:
     history = EvaluationHistory.resumed(out, agent.steps) if resumed else EvaluationHistory()
     held_out = evaluation_env(cfg)
     schedule = RecordSchedule(cfg.eval.every_steps, agent.steps, resumed)
-    begin_run(
-        plan,
+    plan.begin_run(
         info,
         {
             "agent": cfg.agent,

@@ -20,7 +20,8 @@ from envs.common.registry import Environment, register_environment
 from envs.common.scenario import scenario_problems
 from envs.redundant_gyros.env import OBS_SIZE, OBS_SIZES, RedundantGyroCalibrationEnv
 from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod, GyroReward
-from qkf.redundant_gyros.config import GyrosConfig, load_config
+from qkf.redundant_gyros import load_config
+from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target
 from qkf.redundant_gyros.scenario import epochs

@@ -25,8 +25,9 @@ from envs.common.actions import ActionMap
 from envs.common.bounds import DIVERGENCE_REWARD, observation_box
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS, GyroObservationInputs
 from envs.redundant_gyros.rewards import GYRO_REWARDS, GyroPeriod
+from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.batched_ukf import BatchedUKF
-from qkf.redundant_gyros.config import GyrosConfig, load_config
+from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE
 

@@ -41,7 +41,7 @@ ConfigArgument = Annotated[
 
 
 def _load(config: str, sets: list[str] | None) -> GyrosConfig:
-    from qkf.redundant_gyros.config import load_config
+    from qkf.redundant_gyros import load_config
 
     try:
         return load_config(config, list(sets or []))

@@ -9,12 +9,10 @@ machinery (YAML, ``--set`` overrides, messages naming file and field) is :mod:`q
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from qkf.core import presets
 from qkf.core.actions import ActionSet
 from qkf.core.config import (
     ConfigError,
@@ -482,30 +480,10 @@ def _check_bench(cfg: GyrosConfig, trials: int | None) -> None:
         )
 
 
-def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> GyrosConfig:
-    """Read and validate a gyros config — a path or a preset name (``five_gyros``) — then apply
-    ``--set`` overrides. Raises :class:`ConfigError` naming the file and the field; geometry
-    problems (a model or the unit without three independent axes) are checked as well."""
-    cfg = presets.load_preset(GyrosConfig, path, PRESETS, overrides)
-    source = (
-        "<defaults>"
-        if path is None
-        else str(presets.resolve(path, PRESETS)) + (" (with --set)" if overrides else "")
-    )
-    from qkf.redundant_gyros.geometry import GeometryError, build_unit
-
-    try:
-        build_unit(cfg)
-    except GeometryError as exc:
-        raise ConfigError(f"invalid configuration\n  {source}: {exc}") from None
-    return cfg
-
-
 __all__ = [
     "ConfigError",
     "Fault",
     "GyrosConfig",
     "OnsetDrift",
     "check_workload",
-    "load_config",
 ]
