@@ -56,7 +56,13 @@ from envs.transfer_alignment.observations import OBSERVATIONS
 from envs.transfer_alignment.rewards import REWARDS
 from qkf.core.config import ConfigError
 from qkf.core.io import OutputError, check_output_dir
-from qkf.transfer_alignment.config import MAX_TRIALS, Config, check_workload, load_config
+from qkf.transfer_alignment.config import (
+    MAX_TRIALS,
+    Config,
+    GlrConfig,
+    check_workload,
+    load_config,
+)
 from qkf.transfer_alignment.methods import (
     METHODS,
     MethodOutput,
@@ -65,7 +71,8 @@ from qkf.transfer_alignment.methods import (
     resolve_method_settings,
     validate_output,
 )
-from qkf.transfer_alignment.methods.base import decision_steps
+from qkf.transfer_alignment.methods.base import decision_steps, settings_of
+from qkf.transfer_alignment.methods.glr import run_glr
 from qkf.transfer_alignment.moves import Moves
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
@@ -122,7 +129,8 @@ def method_moves(cfg: Config, out: MethodOutput, period: int, controls: ControlM
     reopen = out.logs.get("reopen")
     if reopen is not None:
         params = FilterParams.from_config(cfg)
-        fraction = cfg.adaptive.glr.reset_ppm * 1e-6 / float(params.p0_sigma[6])
+        reset_ppm = settings_of(run_glr, cfg, GlrConfig).reset_ppm
+        fraction = reset_ppm * 1e-6 / float(params.p0_sigma[6])
         padded = np.zeros((b, steps * period), dtype=bool)
         padded[:, :n] = np.asarray(reopen, dtype=bool)
         within = np.asarray(padded.reshape(b, steps, period).any(axis=2))  # inside period p

@@ -40,8 +40,8 @@ from qkf.transfer_alignment.methods import (
     resolve_method_settings,
     uses_settings,
 )
-from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule
-from qkf.transfer_alignment.methods.base import MethodOutput, declared_settings
+from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule, run_alarm_burst
+from qkf.transfer_alignment.methods.base import MethodOutput, declared_settings, settings_of
 from qkf.transfer_alignment.methods.oracle import OracleSchedule
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from tests.conftest import ROOT, cfg_with
@@ -279,12 +279,11 @@ def test_method_settings_reads_an_unresolved_config_too() -> None:
 
 def test_change_clock_takes_the_configured_alarm_settings() -> None:
     assert (NIS_ALARM, QUIET_S) == (AlarmBurstConfig().nis_alarm, AlarmBurstConfig().quiet_s)
-    clock = change_clock(
-        cfg_with("adaptive.alarm_burst.nis_alarm=7", "adaptive.alarm_burst.quiet_s=100"), 3
-    )
+    cfg = cfg_with("adaptive.alarm_burst.nis_alarm=7", "adaptive.alarm_burst.quiet_s=100")
+    clock = change_clock(settings_of(run_alarm_burst, cfg, AlarmBurstConfig), 3)
     assert (clock.nis_alarm, clock.quiet_s) == (7.0, 100.0)
     np.testing.assert_array_equal(clock.alarms(np.array([6.9, 7.0, 7.1])), [False, False, True])
-    default = change_clock(cfg_with(), 1)
+    default = change_clock(settings_of(run_alarm_burst, cfg_with(), AlarmBurstConfig), 1)
     assert (default.nis_alarm, default.quiet_s) == (NIS_ALARM, QUIET_S)
 
 

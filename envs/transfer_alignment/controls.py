@@ -48,10 +48,11 @@ import numpy as np
 from gymnasium import spaces
 
 from qkf.core.registry import Registry
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, GlrConfig, NisRuleConfig
 from qkf.transfer_alignment.methods.alarm_burst import nis_per_row
-from qkf.transfer_alignment.methods.glr import GlrPeriodDecision
-from qkf.transfer_alignment.methods.nis_rule import NisRuleDecision
+from qkf.transfer_alignment.methods.base import settings_of
+from qkf.transfer_alignment.methods.glr import GlrPeriodDecision, run_glr
+from qkf.transfer_alignment.methods.nis_rule import NisRuleDecision, run_nis_rule
 from qkf.transfer_alignment.moves import (
     BLOCK_SCALES,
     R_SCALES,
@@ -139,7 +140,7 @@ class NisRuleBase:
     with the config's ``adaptive.nis_rule`` (its ``period_s`` must be the environment's)."""
 
     def __init__(self, cfg: Config, n: int, period_s: float) -> None:
-        nr = cfg.adaptive.nis_rule
+        nr = settings_of(run_nis_rule, cfg, NisRuleConfig)
         if abs(nr.period_s - period_s) > 1e-9:
             raise ValueError(
                 f"base nis-rule decides every adaptive.nis_rule.period_s = {nr.period_s:g} s, "
@@ -168,7 +169,7 @@ class GlrBase:
 
     def __init__(self, cfg: Config, n: int, period_s: float) -> None:
         params = FilterParams.from_config(cfg)
-        glr = cfg.adaptive.glr
+        glr = settings_of(run_glr, cfg, GlrConfig)
         self.n, self.kappa0 = n, glr.kappa
         self.rule = GlrPeriodDecision(glr, n, params.n_meas)
         # reset_ppm as a fraction of the calibration prior σ (one σ for the nine terms)

@@ -62,8 +62,10 @@ from envs.transfer_alignment.period_summary import (
 )
 from qkf.core.registry import Registry
 from qkf.transfer_alignment.alarms import change_clock
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import AlarmBurstConfig, Config
 from qkf.transfer_alignment.filter import FilterRecord
+from qkf.transfer_alignment.methods.alarm_burst import run_alarm_burst
+from qkf.transfer_alignment.methods.base import settings_of
 from qkf.transfer_alignment.moves import Moves
 from qkf.transfer_alignment.states import GROUPS
 
@@ -231,7 +233,7 @@ class ObservationV1:
         self.period_s = period_s
         # the alarm (x > nis_alarm) and, for v2, the age of the change: the alarm-burst
         # method's clock with the same configured settings
-        self.clock = change_clock(cfg, n)
+        self.clock = change_clock(settings_of(run_alarm_burst, cfg, AlarmBurstConfig), n)
         self.alarm = np.zeros(n, dtype=bool)  # the last period's alarms (x > nis_alarm)
         self.cusum = np.zeros(n)
         # past periods' mean NIS per row, newest last: attitude, rate (v3) and all rows

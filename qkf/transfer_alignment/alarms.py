@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import AlarmBurstConfig, Config
+from qkf.transfer_alignment.config import AlarmBurstConfig
 
 _DEFAULTS = AlarmBurstConfig()
 
@@ -57,9 +57,9 @@ class ChangeClock:
         return self.age
 
 
-def change_clock(cfg: Config, n: int) -> ChangeClock:
-    """The clock of N runs with the config's alarm settings (``adaptive.alarm_burst.nis_alarm``,
-    ``quiet_s``): what the ``alarm-burst`` method and the environment's observation v2 both use,
-    so that a changed setting changes both alike."""
-    settings = cfg.adaptive.alarm_burst
+def change_clock(settings: AlarmBurstConfig, n: int) -> ChangeClock:
+    """The clock of N runs with the alarm-burst method's alarm settings (``nis_alarm``,
+    ``quiet_s``): what the ``alarm-burst`` method and the environment's observation v2 both use
+    (the latter reads them through the method's declaration), so that a changed setting changes
+    both alike."""
     return ChangeClock(n, quiet_s=settings.quiet_s, nis_alarm=settings.nis_alarm)

@@ -42,7 +42,7 @@ from qkf.transfer_alignment.chunk_cache import (
     store_prepared,
     to_entry,
 )
-from qkf.transfer_alignment.config import TUNING_SEEDS, Config
+from qkf.transfer_alignment.config import TUNING_SEEDS, Config, QkfConfig
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
 from qkf.transfer_alignment.methods import (
@@ -55,8 +55,9 @@ from qkf.transfer_alignment.methods import (
     resolve_method_settings,
     validate_output,
 )
-from qkf.transfer_alignment.methods.base import decision_steps
+from qkf.transfer_alignment.methods.base import decision_steps, settings_of
 from qkf.transfer_alignment.methods.covariance import covariance_epochs
+from qkf.transfer_alignment.methods.qlearning import run_qkf
 from qkf.transfer_alignment.metrics import (
     METRIC_COLUMNS,
     state_errors,
@@ -120,7 +121,7 @@ class CacheWarning(UserWarning):
 
 def kappa_sampling(cfg: Config) -> int:
     """Epochs between the κ samples of ``kappa.csv`` and the κ plot (the QKF's period)."""
-    return decision_steps(cfg.adaptive.qkf.period_s, cfg.scenario.dt_s)
+    return decision_steps(settings_of(run_qkf, cfg, QkfConfig).period_s, cfg.scenario.dt_s)
 
 
 def parse_methods(spec: str | list[str]) -> list[NamedMethod]:

@@ -24,7 +24,13 @@ import numpy as np
 
 from qkf.transfer_alignment.alarms import change_clock
 from qkf.transfer_alignment.config import AlarmBurstConfig, Config
-from qkf.transfer_alignment.methods.base import EpochRecords, MethodOutput, new_filter, per_epoch
+from qkf.transfer_alignment.methods.base import (
+    EpochRecords,
+    MethodOutput,
+    new_filter,
+    per_epoch,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, tune_oracle
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -80,7 +86,7 @@ class AlarmBurstSchedule:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         ab, orc = cfg.adaptive.alarm_burst, self.schedule
-        clock = change_clock(cfg, data.n_trials)  # the alarm settings observation v2 sees too
+        clock = change_clock(ab, data.n_trials)  # the alarm settings observation v2 sees too
 
         def decide(nis: np.ndarray, period_s: float) -> np.ndarray:
             age = clock.update(clock.alarms(nis), period_s)
@@ -94,11 +100,9 @@ class AlarmBurstSchedule:
         return out
 
 
+@uses_settings("alarm_burst", AlarmBurstConfig, reads=("oracle", "tuned"))
 class AlarmBurst:
     """The ``alarm-burst`` method: tuned once per benchmark in :meth:`prepare`."""
-
-    settings_section = "alarm_burst"  # the settings it declares (methods.base.uses_settings)
-    settings = AlarmBurstConfig
 
     def prepare(self, cfg: Config) -> AlarmBurstSchedule:
         return AlarmBurstSchedule(tune_oracle(cfg, progress_label="tune alarm-burst"))

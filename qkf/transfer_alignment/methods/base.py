@@ -23,7 +23,7 @@ from typing import Protocol, TypeVar, runtime_checkable
 import numpy as np
 
 from qkf.core.config import StrictModel
-from qkf.transfer_alignment.config import Config, SettingsT, read_section
+from qkf.transfer_alignment.config import Config, SettingsT, builtin_section, read_section
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -172,26 +172,39 @@ SETTINGS_SECTION = "settings_section"
 """Attribute of a method naming the section of ``adaptive`` it reads (:func:`uses_settings`)."""
 SETTINGS_MODEL = "settings"
 """Attribute of a method holding the model of that section (a ``StrictModel`` subclass)."""
+SETTINGS_READS = "settings_reads"
+"""Attribute of a method naming the other methods' built-in sections it reads as well."""
 
 M = TypeVar("M")
 
 
-def uses_settings(section: str, model: type[StrictModel]) -> Callable[[M], M]:
-    """Declare that the decorated method reads ``cfg.adaptive.<section>`` as ``model``.
+def uses_settings(
+    section: str, model: type[StrictModel], reads: tuple[str, ...] = ()
+) -> Callable[[M], M]:
+    """Declare that the decorated method (a function or a class) reads ``cfg.adaptive.<section>``
+    as ``model``, and reads the built-in sections ``reads`` of other methods as well.
 
     ``model`` is a :class:`~qkf.core.config.StrictModel` subclass: its defaults are the
     method's defaults and its fields are validated (unknown keys refused), so ``section`` in a
     YAML file or ``--set adaptive.<section>.<field>=…`` is checked, with the field named, before
-    a benchmark does any work. The declaration is two attributes, ``settings_section`` and
-    ``settings``; a callable class may set them as class attributes instead. The method reads
-    its settings with :func:`method_settings`. A built-in section (``imm``) may be declared
-    with its own model only.
+    a benchmark does any work. A built-in section (``imm``) may be declared with its own model
+    only. ``reads`` (e.g. ``("tuned",)``, the tuning budget a tuned baseline shares) makes a
+    read of another method's section visible where the method is defined; the layering test
+    (``tests/test_settings_reads.py``) refuses any ``cfg.adaptive.<section>`` read that no
+    declaration covers. The declaration is three attributes (``settings_section``,
+    ``settings``, ``settings_reads``); the method reads its own settings as
+    ``cfg.adaptive.<section>`` (a built-in one) or with :func:`method_settings`, and anyone
+    else reads them through the method with :func:`settings_of`.
     """
     check_declaration(section, model)
+    for other in reads:
+        if builtin_section(other) is None:
+            raise ValueError(f"reads={reads!r}: {other!r} is not a built-in section of adaptive")
 
     def declare(method: M) -> M:
         setattr(method, SETTINGS_SECTION, section)
         setattr(method, SETTINGS_MODEL, model)
+        setattr(method, SETTINGS_READS, tuple(reads))
         return method
 
     return declare
@@ -235,6 +248,25 @@ def method_settings(cfg: Config, section: str, model: type[SettingsT]) -> Settin
     :class:`~qkf.core.config.ConfigError` naming ``adaptive.<section>.<field>``.
     """
     return read_section(cfg, section, model)
+
+
+def declared_sections(method: object) -> tuple[str, ...]:
+    """Every section of ``adaptive`` a method declares it reads: its own, then ``reads``."""
+    declared = declared_settings(method)
+    own = () if declared is None else (declared[0],)
+    return own + tuple(getattr(method, SETTINGS_READS, ()))
+
+
+def settings_of(method: object, cfg: Config, model: type[SettingsT]) -> SettingsT:
+    """The settings of ``method`` in ``cfg``, read through its declaration
+    (:func:`uses_settings`): how code that is not the method (an environment's controls, a
+    tuning budget) reads them, so that what it reads is visible in the method's own file.
+    ``model`` is the declared model (for the type checker); ``ValueError`` if the method
+    declares none or another."""
+    declared = declared_settings(method)
+    if declared is None or declared[1] is not model:
+        raise ValueError(f"{method!r} does not declare settings of type {model.__name__}")
+    return read_section(cfg, declared[0], model)
 
 
 def action_values(cfg: Config) -> np.ndarray:

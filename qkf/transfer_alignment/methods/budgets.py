@@ -14,9 +14,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import action_values
+from qkf.transfer_alignment.config import (
+    ClockConfig,
+    Config,
+    OptunaConfig,
+    OracleConfig,
+    TunedConfig,
+)
+from qkf.transfer_alignment.methods.base import action_values, settings_of
+from qkf.transfer_alignment.methods.clock import run_clock
+from qkf.transfer_alignment.methods.fixed import run_kf_tuned
 from qkf.transfer_alignment.methods.on_mixture import MIXED_SUFFIX
+from qkf.transfer_alignment.methods.oracle import run_oracle
 from qkf.transfer_alignment.methods.tuned import TUNED_METHODS
 
 
@@ -32,14 +41,15 @@ class Budget:
 
 def _oracle_runs(cfg: Config) -> int:
     a = len(action_values(cfg))
-    return a + 1 + (a - 1) * len(cfg.adaptive.oracle.windows_s)  # with a jump in the scenario
+    windows = settings_of(run_oracle, cfg, OracleConfig).windows_s
+    return a + 1 + (a - 1) * len(windows)  # with a jump in the scenario
 
 
 def tuning_budgets(cfg: Config) -> dict[str, Budget]:
     """The budget of every tunable method under ``cfg`` (module docstring), by name."""
     a = len(action_values(cfg))
-    trials = cfg.adaptive.tuned.trials
-    cc = cfg.adaptive.clock
+    trials = settings_of(run_kf_tuned, cfg, TunedConfig).trials
+    cc = settings_of(run_clock, cfg, ClockConfig)
     blocks = math.ceil(cfg.scenario.duration_s / cc.block_s)
     out = {
         "kf-tuned": Budget(a, trials, exhaustive=True),
@@ -48,6 +58,7 @@ def tuning_budgets(cfg: Config) -> dict[str, Budget]:
     }
     for name in TUNED_METHODS:
         extra = _oracle_runs(cfg) if name == "alarm-burst-tuned" else 0
-        out[name] = Budget(cfg.adaptive.optuna.evaluations + extra, trials)
+        evaluations = settings_of(TUNED_METHODS[name], cfg, OptunaConfig).evaluations
+        out[name] = Budget(evaluations + extra, trials)
     out |= {name + MIXED_SUFFIX: budget for name, budget in list(out.items())}
     return out

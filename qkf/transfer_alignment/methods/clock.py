@@ -26,7 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.transfer_alignment.config import ClockConfig, Config
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, decision_steps
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    decision_steps,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.oracle import run_schedule
 from qkf.transfer_alignment.methods.schedule_search import SearchPlan, search
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
@@ -98,12 +103,10 @@ def tune_clock(cfg: Config, progress_label: str = "tune clock") -> ClockSchedule
     return ClockSchedule(block_s, kappa, note, res.stages, tuning)
 
 
+@uses_settings("clock", ClockConfig, reads=("tuned",))
 class Clock:
     """The ``clock`` yardstick: tuned once per benchmark in :meth:`prepare` (driver process);
     called unprepared it tunes on the spot."""
-
-    settings_section = "clock"  # the settings it declares (methods.base.uses_settings)
-    settings = ClockConfig
 
     def prepare(self, cfg: Config) -> ClockSchedule:
         return tune_clock(cfg)

@@ -13,6 +13,7 @@ from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
+    uses_settings,
     with_epoch_records,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
@@ -73,15 +74,13 @@ class FixedKappa:
         return out
 
 
+@uses_settings("tuned", TunedConfig)
 class TunedKF:
     """Tuned fixed-Q KF: the best constant κ of the action set, picked on tuning seeds.
 
     The tuning runs once per benchmark, in :meth:`prepare` (driver process); calling the
     method unprepared tunes on the spot.
     """
-
-    settings_section = "tuned"  # the settings it declares (methods.base.uses_settings)
-    settings = TunedConfig
 
     def prepare(self, cfg: Config) -> FixedKappa:
         kappa, _ = tuned_kappa(cfg)

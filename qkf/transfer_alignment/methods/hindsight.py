@@ -45,7 +45,12 @@ from dataclasses import replace
 import numpy as np
 
 from qkf.transfer_alignment.config import Config, HindsightConfig
-from qkf.transfer_alignment.methods.base import MethodOutput, action_values, decision_steps
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    action_values,
+    decision_steps,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.oracle import run_schedule
 from qkf.transfer_alignment.methods.schedule_search import SearchPlan, SearchResult, search
 from qkf.transfer_alignment.scenario import ScenarioData
@@ -161,11 +166,9 @@ def hindsight(cfg: Config, data: ScenarioData, starts: Sequence[np.ndarray] = ()
     return out
 
 
+@uses_settings("hindsight", HindsightConfig, reads=("tuned",))
 class Hindsight:
     """The ``hindsight`` yardstick: nothing to prepare (each trial is searched on its own)."""
-
-    settings_section = "hindsight"  # the settings it declares (methods.base.uses_settings)
-    settings = HindsightConfig
 
     def __call__(
         self, cfg: Config, data: ScenarioData, starts: Sequence[np.ndarray] = ()

@@ -32,9 +32,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config
+from qkf.transfer_alignment.config import Config, HindsightConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.methods.base import MethodOutput, decision_steps, new_filter
+from qkf.transfer_alignment.methods.base import (
+    MethodOutput,
+    decision_steps,
+    new_filter,
+    uses_settings,
+)
 from qkf.transfer_alignment.methods.hindsight import hindsight
 from qkf.transfer_alignment.methods.moves_schedule import MoveSchedule, run_moves
 from qkf.transfer_alignment.methods.schedule_search import _Scorer, drop_rows
@@ -164,6 +169,7 @@ def _candidates(sched: MoveSchedule, trials: np.ndarray) -> MoveSchedule:
 
 
 @dataclass(frozen=True)
+@uses_settings("hindsight", HindsightConfig, reads=("tuned",))
 class HindsightMoves:
     """``hindsight-moves:CONTROLS`` (module docstring)."""
 

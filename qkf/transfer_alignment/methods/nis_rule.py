@@ -20,7 +20,7 @@ import numpy as np
 from qkf.transfer_alignment.alarms import ChangeClock
 from qkf.transfer_alignment.config import Config, NisRuleConfig
 from qkf.transfer_alignment.methods.alarm_burst import run_periodic_rule
-from qkf.transfer_alignment.methods.base import MethodOutput
+from qkf.transfer_alignment.methods.base import MethodOutput, uses_settings
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
@@ -43,11 +43,9 @@ class NisRuleDecision:
         return np.where(since < nr.hold_s - 1e-9, nr.kappa_burst, nr.kappa_base)
 
 
+@uses_settings("nis_rule", NisRuleConfig)
 class NisRule:
     """The ``nis-rule`` method (module docstring)."""
-
-    settings_section = "nis_rule"  # the settings it declares (methods.base.uses_settings)
-    settings = NisRuleConfig
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         nr = cfg.adaptive.nis_rule

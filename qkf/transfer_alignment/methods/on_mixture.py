@@ -87,5 +87,9 @@ class TunedOnMixture:
     def settings(self) -> Any:
         return getattr(self.base, "settings", None)
 
+    @property
+    def settings_reads(self) -> Any:
+        return getattr(self.base, "settings_reads", ())
+
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return self.prepare(cfg)(cfg, data)

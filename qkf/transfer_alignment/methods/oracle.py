@@ -29,6 +29,7 @@ from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
     new_filter,
+    uses_settings,
     with_epoch_records,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
@@ -117,11 +118,9 @@ def tune_oracle(cfg: Config, progress_label: str = "tune oracle") -> OracleSched
     return OracleSchedule(base, best[1], best[2])
 
 
+@uses_settings("oracle", OracleConfig, reads=("tuned",))
 class Oracle:
     """The ``oracle`` method: tuned once per benchmark in :meth:`prepare` (driver process)."""
-
-    settings_section = "oracle"  # the settings it declares (methods.base.uses_settings)
-    settings = OracleConfig
 
     def prepare(self, cfg: Config) -> OracleSchedule:
         return tune_oracle(cfg)

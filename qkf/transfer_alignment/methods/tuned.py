@@ -60,7 +60,7 @@ from qkf.core.montecarlo import progress_stage
 from qkf.transfer_alignment.config import Config, OptunaConfig, epochs_of
 from qkf.transfer_alignment.judging import estimate_scores, pooled
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule, run_alarm_burst
-from qkf.transfer_alignment.methods.base import Method, MethodOutput, action_values
+from qkf.transfer_alignment.methods.base import Method, MethodOutput, action_values, uses_settings
 from qkf.transfer_alignment.methods.covariance_matching import run_covariance_matching
 from qkf.transfer_alignment.methods.fading import run_fading
 from qkf.transfer_alignment.methods.glr import run_glr
@@ -203,6 +203,7 @@ class TunedSetting:
 
 
 @dataclass(frozen=True)
+@uses_settings("optuna", OptunaConfig, reads=("tuned",))
 class OptunaTuned:
     """The ``-tuned`` variant of a method whose settings are the section ``section`` of
     ``adaptive``: ``space`` is searched (module docstring), the rest of the section stays as
@@ -213,9 +214,6 @@ class OptunaTuned:
     base: Method
     section: str
     space: tuple[Param, ...]
-
-    settings_section = "optuna"  # the settings it declares (methods.base.uses_settings)
-    settings = OptunaConfig
 
     def sections(self) -> tuple[str, ...]:
         """The sections of ``adaptive`` whose values change what the study finds."""
@@ -259,6 +257,7 @@ SCHEDULE = ("kappa_base", "kappa_after", "window_s")
 
 
 @dataclass(frozen=True)
+@uses_settings("optuna", OptunaConfig, reads=("tuned", "alarm_burst", "oracle"))
 class AlarmBurstTuned(OptunaTuned):
     """``alarm-burst-tuned``: the alarm settings (``adaptive.alarm_burst``) and the schedule
     ``(κ_base, κ_after, W)`` tuned jointly. θ₀ is what ``alarm-burst`` runs with: its section
