@@ -133,16 +133,12 @@ class TrainConfig(StrictModel):
     @field_validator("agent")
     @classmethod
     def _known_agent(cls, v: str) -> str:
-        if v not in ALGORITHMS:
-            raise ValueError(f"unknown agent {v!r}; known: {', '.join(ALGORITHMS.names())}")
-        return v
+        return ALGORITHMS.known(v, "agent")
 
     @field_validator("env")
     @classmethod
     def _known_env(cls, v: str) -> str:
-        if v not in ENVIRONMENTS:
-            raise ValueError(f"unknown env {v!r}; known: {', '.join(ENVIRONMENTS.names())}")
-        return v
+        return ENVIRONMENTS.known(v, "env")
 
     @field_validator("reward")
     @classmethod

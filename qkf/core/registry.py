@@ -73,6 +73,16 @@ class Registry(Generic[T]):
 
         return add if obj is None else add(obj)
 
+    def known(self, name: str, what: str | None = None) -> str:
+        """``name`` if it is registered, else ``ValueError`` listing the known names: the check
+        of a config field that names an entry (a pydantic validator). ``what`` names the
+        entry in the message (default: the registry's ``kind``)."""
+        if name not in self:
+            raise ValueError(
+                f"unknown {what or self.kind} {name!r}; known: {', '.join(self.names())}"
+            )
+        return name
+
     def _load_entry_points(self) -> None:
         if self._loaded_entry_points or self.group is None:
             return

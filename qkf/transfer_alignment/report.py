@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -713,33 +713,48 @@ class _Row:
         return int(value)
 
 
-def _read_rows(path: Path, columns: tuple[str, ...] = ()) -> list[_Row]:
-    """The data rows of a result CSV; ``ConfigError`` naming the file and the line for a missing
-    file or column, a row with too few or too many cells (a truncated file) or bad bytes."""
+def checked_rows(
+    path: Path, what: str, header_problem: Callable[[list[str]], str | None]
+) -> Iterator[tuple[list[str], int, list[str]]]:
+    """``(header, line, cells)`` for each data row of a CSV file qkf wrote, every row as long
+    as the header. ``ConfigError`` naming the file (and the line) for a missing file, a header
+    ``header_problem`` refuses (it returns the message, or None), a row with too few or too
+    many cells (a truncated file), bad bytes or broken CSV; ``what`` names the folder the file
+    belongs to in the messages (``qkf bench folder``)."""
     if not path.is_file():
-        raise ConfigError(f"{path}: missing (not a complete qkf bench folder)")
-    rows = []
+        raise ConfigError(f"{path}: missing (not a complete {what})")
     try:
         with path.open(newline="", encoding="utf-8") as f:
             reader = csv.reader(f)
-            header = next(reader, None)
-            if not header:
-                raise ConfigError(f"{path}: empty (not a complete qkf bench folder)")
-            missing = [c for c in columns if c not in header]
-            if missing:
-                raise ConfigError(f"{path}: line 1: no column {', '.join(missing)}")
+            header = next(reader, None) or []
+            problem = header_problem(header)
+            if problem is not None:
+                raise ConfigError(f"{path}: {problem}")
             for cells in reader:
                 if len(cells) != len(header):
                     raise ConfigError(
                         f"{path}: line {reader.line_num}: {len(cells)} cells where the header "
                         f"has {len(header)} (a truncated or corrupt file?)"
                     )
-                rows.append(_Row(path, reader.line_num, dict(zip(header, cells, strict=True))))
+                yield header, reader.line_num, cells
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text file (a corrupt file?)") from None
     except csv.Error as exc:
         raise ConfigError(f"{path}: not a readable CSV file ({exc})") from None
-    return rows
+
+
+def _read_rows(path: Path, columns: tuple[str, ...] = ()) -> list[_Row]:
+    """The data rows of a result CSV, checked (:func:`checked_rows`): a missing column is an
+    error too."""
+
+    def header_problem(header: list[str]) -> str | None:
+        if not header:
+            return "empty (not a complete qkf bench folder)"
+        missing = [c for c in columns if c not in header]
+        return f"line 1: no column {', '.join(missing)}" if missing else None
+
+    rows = checked_rows(path, "qkf bench folder", header_problem)
+    return [_Row(path, line, dict(zip(header, cells, strict=True))) for header, line, cells in rows]
 
 
 def read_trials_csv(folder: str | Path) -> dict[str, np.ndarray]:

@@ -23,7 +23,6 @@ study, the trials and ``--set`` overrides in effect, the cases and their folders
 
 from __future__ import annotations
 
-import csv
 import shutil
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -80,6 +79,7 @@ from qkf.transfer_alignment.report import (
     SUMMARY_COLUMNS,
     UNITS,
     bench_figures,
+    checked_rows,
     load_bench,
     method_style,
     read_crlb_csv,
@@ -797,33 +797,19 @@ def redraw_study(folder: str | Path) -> list[Path]:
 def _read_study_csv(path: Path) -> list[list[object]]:
     """``study.csv`` back as the rows :func:`study_figure` takes (text cells), checked: every
     row complete, the plotted columns numbers (or empty); ``ConfigError`` names the line."""
-    if not path.is_file():
-        raise ConfigError(f"{path}: missing (not a complete qkf study folder)")
     header = ["case", *SUMMARY_COLUMNS]
+
+    def header_problem(found: list[str]) -> str | None:
+        return None if found == header else "line 1: not the header of a qkf study.csv"
+
     rows: list[list[object]] = []
-    try:
-        with path.open(newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
-            if next(reader, None) != header:
-                raise ConfigError(f"{path}: line 1: not the header of a qkf study.csv")
-            for cells in reader:
-                if len(cells) != len(header):
-                    raise ConfigError(
-                        f"{path}: line {reader.line_num}: {len(cells)} cells where the header "
-                        f"has {len(header)} (a truncated or corrupt file?)"
-                    )
-                for col, cell in zip(header[4:], cells[4:], strict=True):
-                    try:
-                        float(cell or "nan")
-                    except ValueError:
-                        raise ConfigError(
-                            f"{path}: line {reader.line_num}: {col}: {cell!r} is not a number"
-                        ) from None
-                rows.append(list(cells))
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file (a corrupt file?)") from None
-    except csv.Error as exc:
-        raise ConfigError(f"{path}: not a readable CSV file ({exc})") from None
+    for _, line, cells in checked_rows(path, "qkf study folder", header_problem):
+        for col, cell in zip(header[4:], cells[4:], strict=True):
+            try:
+                float(cell or "nan")
+            except ValueError:
+                raise ConfigError(f"{path}: line {line}: {col}: {cell!r} is not a number") from None
+        rows.append(list(cells))
     return rows
 
 
