@@ -37,7 +37,7 @@ import pandas as pd
 
 from agents.config import load_train_config
 from agents.training import train
-from qkf.transfer_alignment.study import run_study
+from qkf.transfer_alignment.campaigns import run_study
 
 SMALL = os.environ.get("QKF_TUTORIAL_SMALL") == "1"
 OUT = Path(os.environ.get("QKF_TUTORIAL_OUT", "results/tutorial"))

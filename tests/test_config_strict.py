@@ -30,6 +30,7 @@ import qkf.transfer_alignment.config as ta
 import qkf.transfer_alignment.study
 from qkf.cli import app
 from qkf.core.config import ConfigError, StrictModel, load_yaml
+from qkf.redundant_gyros import load_config as load_gyros
 from tests.conftest import ALIGNMENT_CONFIGS
 
 runner = CliRunner()
@@ -178,7 +179,7 @@ def test_ints_fill_float_fields_and_lists_fill_tuples(tmp_path: Path) -> None:
     assert all(isinstance(v, float) for v in cfg.scenario.truth.bias_degph)
     assert ta.load_config("paper", ["scenario.duration_s=600"]).scenario.duration_s == 600.0
 
-    g = gyros.load_config(_write(tmp_path / "g.yaml", {"bench": {"duration_s": 45}}))
+    g = load_gyros(_write(tmp_path / "g.yaml", {"bench": {"duration_s": 45}}))
     assert isinstance(g.bench.duration_s, float)
     f = fusion.load_config(_write(tmp_path / "f.yaml", {"simulation": {"duration_s": 900}}))
     assert isinstance(f.simulation.duration_s, float)
@@ -375,20 +376,20 @@ def test_gyros_bench_too_big_is_refused(tmp_path: Path) -> None:
 
 
 def test_gyros_workload_limits() -> None:
-    preset = gyros.load_config("five_gyros")
+    preset = load_gyros("five_gyros")
     gyros.check_workload(preset)
     gyros.check_workload(preset, 10_000)
     with pytest.raises(ConfigError, match=r"--trials × epochs"):
         gyros.check_workload(preset, 10**7)
     # the UKF accuracy run of the bench simulates all its trials over the scenario at once;
     # other commands may still use a long scenario
-    long = gyros.load_config("five_gyros", ["scenario.duration_s=1000000"])
+    long = load_gyros("five_gyros", ["scenario.duration_s=1000000"])
     with pytest.raises(ConfigError, match=r"set bench.ukf_trials to 2 or less"):
         gyros.check_workload(long)
-    fewer = gyros.load_config("five_gyros", ["scenario.duration_s=1000000", "bench.ukf_trials=2"])
+    fewer = load_gyros("five_gyros", ["scenario.duration_s=1000000", "bench.ukf_trials=2"])
     gyros.check_workload(fewer)
     with pytest.raises(ConfigError, match=r"bench.duration_s / scenario.dt_s\) = 1e\+08"):
-        gyros.load_config("five_gyros", ["bench.duration_s=1e7"])
+        load_gyros("five_gyros", ["bench.duration_s=1e7"])
 
 
 def test_overrides_can_fix_a_file_refused_on_its_own_but_not_hide_its_errors(

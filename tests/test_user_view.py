@@ -36,7 +36,8 @@ from qkf.transfer_alignment.report import (
 )
 from qkf.transfer_alignment.scenario import simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
-from qkf.transfer_alignment.study import load_study, study_figure
+from qkf.transfer_alignment.study import load_study
+from qkf.transfer_alignment.study_figures import study_figure
 from tests.conftest import CONFIGS
 
 runner = CliRunner()
@@ -337,8 +338,10 @@ def test_plot_redraws_a_crlb_study(tmp_path: Path) -> None:
 
 
 def test_study_figures_keep_the_legend_off_and_say_what_they_plot(tmp_path: Path) -> None:
+    from qkf.transfer_alignment.cases import CaseResult, CaseRun, case_rows
     from qkf.transfer_alignment.crlb import crlb
-    from qkf.transfer_alignment.study import Case, CaseResult, CaseRun, Study, _curves, case_rows
+    from qkf.transfer_alignment.study import Case, Study
+    from qkf.transfer_alignment.study_figures import study_curves
 
     cfg = load_config("paper", ["scenario.duration_s=30"])
     two = [Case(label="one"), Case(label="two")]
@@ -346,14 +349,14 @@ def test_study_figures_keep_the_legend_off_and_say_what_they_plot(tmp_path: Path
     res = run_benchmark(cfg, "kf,qkf", trials=2, seed=0, progress=False)
     results = [CaseResult(CaseRun(c.label, c.label, cfg), res.bound, res) for c in bench.cases]
     rows = [row for r in results for row in case_rows(r)]
-    fig = study_figure(bench, _curves(results), rows, 0.95)
+    fig = study_figure(bench, study_curves(results), rows, 0.95)
     _legend_off_the_data(fig)
     assert "bootstrap" in fig.axes[-1].get_title()
     # a CRLB study plots a bound: no error bars, and the title says so
     bound = Study(name="c", kind="crlb", base="paper", cases=two)
     results = [CaseResult(CaseRun(c.label, c.label, cfg), crlb(cfg), None) for c in bound.cases]
     rows = [row for r in results for row in case_rows(r)]
-    fig = study_figure(bound, _curves(results), rows, 0.95)
+    fig = study_figure(bound, study_curves(results), rows, 0.95)
     _legend_off_the_data(fig)
     title = fig.axes[-1].get_title()
     assert "bootstrap" not in title and "no error bars" in title and "CRLB" in title

@@ -146,8 +146,9 @@ def check_families(
     the entry's name as a method label, the study (families, methods, seed, every family's
     config with the overrides), the workload, and ``WORK/families/`` (empty, or an earlier
     study, which the run replaces whole at its end)."""
+    from qkf.transfer_alignment.cases import prepare_output
     from qkf.transfer_alignment.config import check_workload
-    from qkf.transfer_alignment.study import load_study, prepare_output, study_cases
+    from qkf.transfer_alignment.study import load_study, study_cases
 
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", entry.name):
         raise ConfigError(
@@ -289,7 +290,8 @@ def evaluate_families(
     ``WORK/families/``; returns it. A family that an earlier, interrupted run there finished
     with the same config, methods, trials and seed is kept, not rerun (``run_study``'s
     resume); anything else of an earlier study there is replaced."""
-    from qkf.transfer_alignment.study import CaseRun, run_study
+    from qkf.transfer_alignment.campaigns import run_study
+    from qkf.transfer_alignment.cases import CaseRun
 
     run = families_run(entry, trials, baselines)
     out = work / FAMILIES_DIR
@@ -355,8 +357,8 @@ def evaluate_entry(
             rows += judge_summary(entry, case, folder / "trials.csv")
         write_summary(rows, dst / "zoo_summary.csv")
     if fam is not None:
+        from qkf.core.campaign import case_folder
         from qkf.transfer_alignment.families import SHIFT_FAMILIES
-        from qkf.transfer_alignment.study import case_folder
 
         judged = [*fam.families, *(f for f in SHIFT_FAMILIES if f not in fam.families)]
         say(

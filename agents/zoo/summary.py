@@ -190,7 +190,7 @@ def families_summary(
         versus_rows,
     )
     from qkf.transfer_alignment.report import load_bench, read_trials_csv
-    from qkf.transfer_alignment.study import case_folder
+    from qkf.core.campaign import case_folder
 
     info = read_manifest(study, "study")
     seed = int(info["seed"])

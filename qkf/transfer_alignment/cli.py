@@ -180,10 +180,11 @@ def bench_cmd(
         raise fail("--ignore-column is for the files of --data")
     from qkf.core.io import OutputError
     from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed, run_benchmark
+    from qkf.transfer_alignment.campaigns import run_sweep, sweep_cases
+    from qkf.transfer_alignment.cases import CaseRun
     from qkf.transfer_alignment.divergence import DIVERGED_HEADING, EXIT_DIVERGED
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
     from qkf.transfer_alignment.report import write_bench
-    from qkf.transfer_alignment.study import CaseRun, run_sweep, sweep_cases
 
     if (config is None) == (from_manifest is None):
         raise fail("give a CONFIG or --from-manifest run.json (not both)")
@@ -395,8 +396,8 @@ def plot_cmd(
     import os
     import tempfile
 
+    from qkf.transfer_alignment.campaigns import redraw_study
     from qkf.transfer_alignment.report import redraw_bench
-    from qkf.transfer_alignment.study import redraw_study
 
     if folder.is_file():
         raise fail(f"{folder}: is a file, not a results folder")
@@ -496,15 +497,11 @@ def study_cmd(
     from qkf.core import presets
     from qkf.core.config import read_yaml_mapping
     from qkf.core.io import OutputError
+    from qkf.transfer_alignment.campaigns import run_study
+    from qkf.transfer_alignment.cases import CaseRun, prepare_output
     from qkf.transfer_alignment.config import check_workload
     from qkf.transfer_alignment.methods import MethodOutputError
-    from qkf.transfer_alignment.study import (
-        CaseRun,
-        load_study,
-        prepare_output,
-        run_study,
-        study_cases,
-    )
+    from qkf.transfer_alignment.study import load_study, study_cases
 
     try:
         unknown = presets.missing(study, STUDIES, "study")
