@@ -120,7 +120,7 @@ def evaluate_cmd(
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.chunk_cache import preparation_cached
     from qkf.transfer_alignment.methods import METHODS, resolve_method_settings
-    from qkf.transfer_alignment.report import write_bench
+    from qkf.transfer_alignment.results import write_bench
 
     if model.is_dir():
         raise fail(f"{model}: is a directory, not a model file (model.zip or model.npz)")

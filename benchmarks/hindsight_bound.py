@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import read_trials_csv
+from qkf.transfer_alignment.results import read_trials_csv
 
 
 def main() -> None:

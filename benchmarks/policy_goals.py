@@ -37,7 +37,7 @@ import numpy as np
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
 from qkf.transfer_alignment.families import SEED_MARK, seed_statistics
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import read_trials_csv
+from qkf.transfer_alignment.results import read_trials_csv
 from qkf.transfer_alignment.states import GROUPS
 
 NAMED = ("kf-tuned", "clock", "glr", "alarm-burst")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from qkf.core.manifest import read_manifest
 from qkf.transfer_alignment.families import versus_rows
-from qkf.transfer_alignment.report import load_bench, read_trials_csv
+from qkf.transfer_alignment.results import load_bench, read_trials_csv
 
 VERSUS = (
     "kf-tuned", "kf-tuned-mixed", "clock", "clock-mixed", "glr", "nis-rule",

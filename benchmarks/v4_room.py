@@ -26,7 +26,7 @@ import numpy as np
 from qkf.core.manifest import read_manifest
 from qkf.transfer_alignment.families import versus_rows
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import load_bench, read_trials_csv
+from qkf.transfer_alignment.results import load_bench, read_trials_csv
 
 YARDSTICK_PREFIXES = ("hindsight", "oracle", "clock")
 WORDS = {"better": "**beats**", "worse": "loses", "inconclusive": "ties", "unjudged": "–"}

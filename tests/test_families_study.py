@@ -23,7 +23,7 @@ from qkf.transfer_alignment.families import (
 )
 from qkf.transfer_alignment.judging import state_weights, trial_scores
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import read_trials_csv
+from qkf.transfer_alignment.results import read_trials_csv
 from qkf.transfer_alignment.settled import SettledWindows
 from qkf.transfer_alignment.study import load_study
 

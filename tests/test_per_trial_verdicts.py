@@ -23,7 +23,8 @@ from qkf.transfer_alignment.config import Config, load_config
 from qkf.transfer_alignment.methods import NamedMethod
 from qkf.transfer_alignment.methods.base import MethodOutput
 from qkf.transfer_alignment.methods.fixed import run_fixed
-from qkf.transfer_alignment.report import summary_markdown, write_bench
+from qkf.transfer_alignment.report import summary_markdown
+from qkf.transfer_alignment.results import write_bench
 from qkf.transfer_alignment.scenario import ScenarioData
 
 SEED = 5_300_000  # outside every documented seed range (docs/environment.md)

@@ -23,17 +23,13 @@ from qkf.cli import app
 from qkf.core import montecarlo
 from qkf.core.config import ConfigError
 from qkf.core.montecarlo import progress_bar
+from qkf.transfer_alignment.bench_figures import kappa_figure, rms_groups_figure, rms_states_figure
 from qkf.transfer_alignment.benchmark import BenchResult, run_benchmark
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods.base import action_values
 from qkf.transfer_alignment.methods.oracle import tune_oracle
 from qkf.transfer_alignment.metrics import GROUPS, state_errors
-from qkf.transfer_alignment.report import (
-    kappa_figure,
-    rms_groups_figure,
-    rms_states_figure,
-    summary_markdown,
-)
+from qkf.transfer_alignment.report import summary_markdown
 from qkf.transfer_alignment.scenario import simulate
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 from qkf.transfer_alignment.study import load_study

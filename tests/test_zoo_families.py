@@ -22,7 +22,7 @@ from qkf.cli import app
 from qkf.core.config import ConfigError, validate
 from qkf.transfer_alignment.families import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import read_trials_csv
+from qkf.transfer_alignment.results import read_trials_csv
 
 runner = CliRunner()
 SOURCE = Path(__file__).resolve().parents[1] / "agents" / "zoo" / "ppo_snap_random"

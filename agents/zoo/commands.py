@@ -254,7 +254,7 @@ def evaluate_case(
     only these of the case's baselines."""
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.config import load_config
-    from qkf.transfer_alignment.report import write_bench
+    from qkf.transfer_alignment.results import write_bench
 
     cfg = load_config(case.scenario, list(case.overrides))
     specs = [

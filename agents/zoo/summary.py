@@ -182,6 +182,7 @@ def families_summary(
     or below 1), ``p_improve`` per baseline (no interval: NaN) and the ``ratio`` of the
     shipped seed ``NAME#SEED`` to each method of :data:`VERSUS` that ran (paired interval).
     ``seed`` is the study's benchmark seed; the bootstrap settings are the cases' own."""
+    from qkf.core.campaign import case_folder
     from qkf.core.manifest import read_manifest
     from qkf.transfer_alignment.families import (
         SEED_MARK,
@@ -189,8 +190,7 @@ def families_summary(
         seed_statistics,
         versus_rows,
     )
-    from qkf.transfer_alignment.report import load_bench, read_trials_csv
-    from qkf.core.campaign import case_folder
+    from qkf.transfer_alignment.results import load_bench, read_trials_csv
 
     info = read_manifest(study, "study")
     seed = int(info["seed"])

@@ -16,6 +16,7 @@ from qkf.core.io import atomic_write_bytes, atomic_write_csv, slug
 from qkf.core.manifest import MANIFEST as RUN_FILE
 from qkf.core.manifest import read_manifest
 from qkf.core.plotting import figure_png
+from qkf.transfer_alignment.bench_figures import bench_figures
 from qkf.transfer_alignment.benchmark import parse_methods
 from qkf.transfer_alignment.cases import STUDY, SWEEP, BenchCases, CaseResult, CaseRun, case_rows
 from qkf.transfer_alignment.config import Config, load_config
@@ -29,14 +30,8 @@ from qkf.transfer_alignment.families import (
     seed_statistics,
     versus_rows,
 )
-from qkf.transfer_alignment.report import (
-    SUMMARY_COLUMNS,
-    bench_figures,
-    checked_rows,
-    load_bench,
-    read_crlb_csv,
-    read_trials_csv,
-)
+from qkf.transfer_alignment.report import SUMMARY_COLUMNS
+from qkf.transfer_alignment.results import checked_rows, load_bench, read_crlb_csv, read_trials_csv
 from qkf.transfer_alignment.study import Study, load_study, shift_methods, study_cases
 from qkf.transfer_alignment.study_figures import study_curves, study_figure
 

@@ -23,13 +23,8 @@ from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.judging import state_weights
 from qkf.transfer_alignment.methods import NamedMethod
 from qkf.transfer_alignment.metrics import summarize
-from qkf.transfer_alignment.report import (
-    INTERVAL_COLUMNS,
-    load_bench,
-    summary_rows,
-    write_bench,
-    write_crlb_csv,
-)
+from qkf.transfer_alignment.report import INTERVAL_COLUMNS, summary_rows
+from qkf.transfer_alignment.results import load_bench, write_bench, write_crlb_csv
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
 

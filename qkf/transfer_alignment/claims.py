@@ -34,7 +34,7 @@ from qkf.core.stats import bootstrap_rms, percentile_interval, ratio_side, resam
 from qkf.transfer_alignment.benchmark import BenchResult, parse_methods, run_benchmark
 from qkf.transfer_alignment.config import STUDIES, Config, load_config
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS
-from qkf.transfer_alignment.report import write_bench
+from qkf.transfer_alignment.results import write_bench
 
 CLAIM_COLUMNS = (
     "claim_id",

@@ -78,7 +78,7 @@ def crlb_cmd(
     with refused():  # no method runs: a user section under adaptive is an unknown key
         cfg = load_scenario(config, sets)
     from qkf.transfer_alignment.crlb import crlb
-    from qkf.transfer_alignment.report import write_crlb_csv
+    from qkf.transfer_alignment.results import write_crlb_csv
     from qkf.transfer_alignment.states import STATE_COLUMNS
 
     path = out_file(out_path, ",".join(("t_s", *STATE_COLUMNS)))
@@ -184,7 +184,7 @@ def bench_cmd(
     from qkf.transfer_alignment.cases import CaseRun
     from qkf.transfer_alignment.divergence import DIVERGED_HEADING, EXIT_DIVERGED
     from qkf.transfer_alignment.methods import MethodOutputError, resolve_method_settings
-    from qkf.transfer_alignment.report import write_bench
+    from qkf.transfer_alignment.results import write_bench
 
     if (config is None) == (from_manifest is None):
         raise fail("give a CONFIG or --from-manifest run.json (not both)")
@@ -397,7 +397,7 @@ def plot_cmd(
     import tempfile
 
     from qkf.transfer_alignment.campaigns import redraw_study
-    from qkf.transfer_alignment.report import redraw_bench
+    from qkf.transfer_alignment.results import redraw_bench
 
     if folder.is_file():
         raise fail(f"{folder}: is a file, not a results folder")

@@ -45,7 +45,7 @@ from qkf.core.stats import (
 )
 from qkf.transfer_alignment.benchmark import paired_verdict
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
-from qkf.transfer_alignment.report import load_bench
+from qkf.transfer_alignment.results import load_bench
 
 FAMILIES: tuple[str, ...] = (
     "steady_random",

@@ -8,9 +8,10 @@ from typing import Any
 import numpy as np
 
 from qkf.core.plotting import Figure, plt
+from qkf.transfer_alignment.bench_figures import method_style
 from qkf.transfer_alignment.cases import CaseResult
 from qkf.transfer_alignment.metrics import group_rms
-from qkf.transfer_alignment.report import SUMMARY_COLUMNS, UNITS, method_style
+from qkf.transfer_alignment.report import SUMMARY_COLUMNS, UNITS
 from qkf.transfer_alignment.states import DISPLAY_UNIT, GROUP_TITLES
 from qkf.transfer_alignment.study import Study, study_cases
 

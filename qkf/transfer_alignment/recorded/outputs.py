@@ -19,6 +19,7 @@ import pyarrow.csv as pacsv
 from qkf.core.io import atomic_write_bytes, csv_text, staged_directory
 from qkf.core.manifest import manifest, write_manifest
 from qkf.core.plotting import figure_png
+from qkf.transfer_alignment.bench_figures import bench_figures
 from qkf.transfer_alignment.divergence import divergence_lines
 from qkf.transfer_alignment.recorded.quality import (
     LAGS,
@@ -26,12 +27,8 @@ from qkf.transfer_alignment.recorded.quality import (
     nis_band,
 )
 from qkf.transfer_alignment.recorded.run import RecordedResult
-from qkf.transfer_alignment.report import (
-    RMS_COLUMNS,
-    bench_figures,
-    bench_manifest,
-    bench_tables,
-)
+from qkf.transfer_alignment.report import RMS_COLUMNS, bench_tables
+from qkf.transfer_alignment.results import bench_manifest
 from qkf.transfer_alignment.states import DISPLAY_UNIT, STATE_COLUMNS
 
 CALIBRATION_COLUMNS = STATE_COLUMNS[3:]
