@@ -78,17 +78,12 @@ class Uniform(StrictModel):
         return self
 
 
-class LogUniform(StrictModel):
-    """A log-uniform distribution on ``[low, high]``, both positive."""
+class LogUniform(Uniform):
+    """A log-uniform distribution on ``[low, high]``, both positive (ordered as
+    :class:`Uniform`)."""
 
     low: PositiveFloat
     high: PositiveFloat
-
-    @model_validator(mode="after")
-    def _ordered(self) -> LogUniform:
-        if self.high < self.low:
-            raise ValueError("high must be at least low")
-        return self
 
 
 MAX_RANDOM_JUMPS = 4
