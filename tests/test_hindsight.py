@@ -7,7 +7,6 @@ import itertools
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config
@@ -24,7 +23,7 @@ from qkf.transfer_alignment.methods.hindsight import (
     run_hindsight,
 )
 from qkf.transfer_alignment.methods.oracle import OracleSchedule, run_oracle, run_schedule
-from qkf.transfer_alignment.methods.schedule_search import attitude_error, snap, switches
+from qkf.transfer_alignment.methods.schedule_search import snap, switches
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from tests.conftest import cfg_with
 
@@ -47,20 +46,6 @@ def scores_of(cfg: Config, data: ScenarioData, kappa: np.ndarray) -> np.ndarray:
         cfg, data, np.ascontiguousarray(np.broadcast_to(kappa, data.ads_q.shape[:2]))
     )
     return estimate_scores(cfg, out.est, data)
-
-
-def test_attitude_error_is_scipys_rotation_vector() -> None:
-    rng = np.random.default_rng(3)
-    q_true = Rotation.random(50, random_state=rng).as_quat()
-    small = Rotation.from_rotvec(
-        (rng.normal(size=(3, 50, 3)) * np.array([1e-4, 1e-1, 2.0])[:, None, None]).reshape(-1, 3)
-    )
-    q_hat = (Rotation.from_quat(np.tile(q_true, (3, 1))) * small.inv()).as_quat()
-    q_hat[::2] *= -1.0  # q and −q are one rotation
-    want = Rotation.from_quat(q_hat).inv() * Rotation.from_quat(np.tile(q_true, (3, 1)))
-    got = attitude_error(q_hat, np.tile(q_true, (3, 1)))
-    np.testing.assert_allclose(got, want.as_rotvec(), rtol=1e-9, atol=1e-15)
-    np.testing.assert_allclose(attitude_error(q_true, q_true), 0.0, atol=1e-15)
 
 
 def test_two_blocks_against_every_schedule() -> None:

@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from qkf.core.config import ConfigError
+from qkf.core.so3 import quat_exp, quat_log, quat_mul
 from qkf.transfer_alignment.config import FadingConfig, ImmConfig, load_config
 from qkf.transfer_alignment.methods import METHODS, validate_output
 from qkf.transfer_alignment.methods.base import action_values, new_filter
@@ -30,9 +31,6 @@ from qkf.transfer_alignment.methods.imm import (
     mix_bank,
     mix_moments,
     mixing_probabilities,
-    quat_exp,
-    quat_log,
-    quat_mul,
     run_imm,
     transition_matrix,
     unit_calibration_noise,

@@ -209,8 +209,8 @@ def test_normalize_and_cumulative_rotation() -> None:
     np.testing.assert_array_equal(step, path[3])
 
 
-def test_relative_rotvecs_batch_matches_numpy_and_scipy() -> None:
-    """``quat.relative_rotvecs`` (the compiled error metric) equals ``Log(q̂* ⊗ q)`` of the
+def test_attitude_error_rows_match_numpy_and_scipy() -> None:
+    """``quat.attitude_error_into`` (the compiled error metric) equals ``Log(q̂* ⊗ q)`` of the
     normalised quaternions in numpy and scipy's relative rotation, for unnormalised inputs,
     both signs, small and large relative angles; rows with a non-finite side are NaN and do
     not touch the others."""
@@ -223,7 +223,7 @@ def test_relative_rotvecs_batch_matches_numpy_and_scipy() -> None:
     q_from[7, 2] = np.nan
     q_to[11, 0] = np.inf
     out = np.empty((m, 3))
-    quat.relative_rotvecs(q_from, q_to, out)
+    quat.attitude_error_into(q_from, q_to, out)
     bad = np.zeros(m, dtype=bool)
     bad[[7, 11]] = True
     assert np.isnan(out[bad]).all() and np.isfinite(out[~bad]).all()
@@ -235,6 +235,59 @@ def test_relative_rotvecs_batch_matches_numpy_and_scipy() -> None:
     np.testing.assert_allclose(out[inside], phi[inside], rtol=1e-9, atol=1e-12)
     scipy_rel = (Rotation.from_quat(a).inv() * Rotation.from_quat(b)).as_rotvec()
     np.testing.assert_allclose(out[~bad], scipy_rel, rtol=1e-12, atol=1e-15)
+
+
+def test_attitude_error_is_scipys_relative_rotation() -> None:
+    """``quat.attitude_error(q̂, q)`` is scipy's ``(R(q̂)⁻¹ R(q)).as_rotvec()`` to 1e-12 relative
+    (1e-15 rad absolute: a quaternion holds an attitude to ~1e-16 rad) for random pairs at
+    relative angles from 1e-9 rad to within 1e-9 rad of π, both signs of w on either side, any
+    length; the half turn itself up to the sign of its axis."""
+    rng = np.random.default_rng(17)
+    m = 500
+    near_pi = np.pi - np.array([1e-2, 1e-3, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9])
+    angle = np.concatenate([10.0 ** rng.uniform(-9, 0.49, m - near_pi.size), near_pi])
+    axis = rng.normal(size=(m, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    q_hat = Rotation.random(m, random_state=rng).as_quat()
+    q = (Rotation.from_quat(q_hat) * Rotation.from_rotvec(axis * angle[:, None])).as_quat()
+    q_hat[::2] *= -1.0  # q and −q are one rotation
+    q[1::3] *= -1.0
+    q_hat *= rng.uniform(0.3, 3.0, size=(m, 1))  # not unit length
+    q *= rng.uniform(0.3, 3.0, size=(m, 1))
+    want = (Rotation.from_quat(q_hat).inv() * Rotation.from_quat(q)).as_rotvec()
+    got = quat.attitude_error(q_hat, q)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), angle, rtol=1e-9, atol=1e-15)
+    # exact half turns: Exp(δθ) = Ĉᵀ C, angle π
+    q_pi = so3.quat_mul(q_hat[:20], so3.quat_exp(axis[:20] * np.pi))
+    half = quat.attitude_error(q_hat[:20], q_pi)
+    rel = Rotation.from_quat(q_hat[:20]).inv() * Rotation.from_quat(q_pi)
+    np.testing.assert_allclose(np.linalg.norm(half, axis=1), np.pi, rtol=1e-12)
+    np.testing.assert_allclose(
+        Rotation.from_rotvec(half).as_matrix(), rel.as_matrix(), rtol=0, atol=1e-12
+    )
+
+
+def test_attitude_error_over_leading_axes() -> None:
+    """Any leading axes, broadcast against each other, row for row the compiled kernel; NaN
+    where either side is not finite; a last axis other than 4 is refused."""
+    q_hat, q = _rotations(31, 24).reshape(2, 3, 4, 4), _rotations(32, 24).reshape(2, 3, 4, 4)
+    got = quat.attitude_error(q_hat[:, :1], q)  # (2, 1, 4, 4) against (2, 3, 4, 4)
+    rows = np.empty((24, 3))
+    quat.attitude_error_into(
+        np.broadcast_to(q_hat[:, :1], q.shape).reshape(-1, 4), q.reshape(-1, 4), rows
+    )
+    assert got.shape == (2, 3, 4, 3)
+    np.testing.assert_array_equal(got, rows.reshape(2, 3, 4, 3))
+    np.testing.assert_array_equal(quat.attitude_error(q_hat[1, 0, 3], q[1, 2, 3]), got[1, 2, 3])
+    q[0, 1, 2, 3] = np.nan
+    with_nan = quat.attitude_error(q_hat[:, :1], q)
+    assert np.isnan(with_nan[0, 1, 2]).all()
+    finite = np.ones(got.shape[:-1], dtype=bool)
+    finite[0, 1, 2] = False
+    np.testing.assert_array_equal(with_nan[finite], got[finite])
+    with pytest.raises(ValueError, match="last axis of 4"):
+        quat.attitude_error(np.zeros((5, 3)), np.zeros((5, 3)))
 
 
 def test_compose_rotvecs_matches_scipy_composition() -> None:

@@ -1,6 +1,6 @@
 """Campaigns: several cases of one problem, each run into its own folder of one output folder.
 
-A study or a sweep (docs/studies.md) is a campaign: it runs a list of cases, writes each case
+A study or a sweep (:mod:`qkf.transfer_alignment.study`) is a campaign: it runs a list of cases, writes each case
 folder whole as soon as that case is done, then the summary files beside them, and keeps a
 ``run.json`` (:mod:`qkf.core.manifest`) that lists every file it wrote. Nothing here knows a
 problem: a problem supplies its cases (anything with a ``folder``) and a

@@ -15,6 +15,7 @@ quat_mul                   quat_mul
 quat_from_rotvec           quat_exp
 rotvec_from_quat           quat_log
 relative_rotvec            quat_log(quat_mul(quat_conj(p), q))
+attitude_error_into        —  (rows; numpy-facing: :func:`attitude_error`)
 quat_mul_exp               quat_mul(q, quat_exp(φ)), normalised
 normalize                  —
 cumulative_rotation        —
@@ -25,6 +26,11 @@ without fast-math (strict IEEE arithmetic: the result is the same wherever they 
 the matrix routines with the kernels' :func:`~qkf.core.jit.kernel_jit` options.
 ``tests/test_so3_core.py`` checks every routine against the numpy one and against
 ``scipy.spatial.transform.Rotation``.
+
+:func:`attitude_error` (compiled kernel :func:`attitude_error_into`) is the attitude error
+``δθ = Log(q̂* ⊗ q)`` of the error metrics, the schedule search and the banks' numpy references.
+Compiled per-epoch code, whose quaternions are unit by construction, uses
+:func:`relative_rotvec`: the same formula without the normalisation.
 """
 
 from __future__ import annotations
@@ -82,6 +88,18 @@ def skew_and_square(w: np.ndarray, out_w: np.ndarray, out_w2: np.ndarray) -> Non
 
 
 @kernel_jit()
+def _add_skew(m: np.ndarray, s: float, phi: np.ndarray) -> None:
+    """``m += s [φ×]`` (3×3) in place, for ``s`` a scalar and ``φ`` (3,)."""
+    # [φ×] = [[0, −φz, φy], [φz, 0, −φx], [−φy, φx, 0]]
+    m[0, 1] -= s * phi[2]
+    m[0, 2] += s * phi[1]
+    m[1, 0] += s * phi[2]
+    m[1, 2] -= s * phi[0]
+    m[2, 0] -= s * phi[1]
+    m[2, 1] += s * phi[0]
+
+
+@kernel_jit()
 def exp_and_left_jacobian(phi: np.ndarray, rot: np.ndarray, jac: np.ndarray) -> None:
     """``rot = Exp(φ) = I + a[φ×] + b[φ×]²`` and ``jac = J_l(φ) = I + b[φ×] + c[φ×]²`` (3×3)
     of a rotation vector ``φ`` (3,) in rad, using ``[φ×]² = φφᵀ − θ² I``.
@@ -98,19 +116,8 @@ def exp_and_left_jacobian(phi: np.ndarray, rot: np.ndarray, jac: np.ndarray) -> 
             jac[i, j] = c * pp
         rot[i, i] += 1.0 - b * t2
         jac[i, i] += 1.0 - c * t2
-    # skew part: [φ×] = [[0, −φz, φy], [φz, 0, −φx], [−φy, φx, 0]]
-    rot[0, 1] -= a * phi[2]
-    rot[0, 2] += a * phi[1]
-    rot[1, 0] += a * phi[2]
-    rot[1, 2] -= a * phi[0]
-    rot[2, 0] -= a * phi[1]
-    rot[2, 1] += a * phi[0]
-    jac[0, 1] -= b * phi[2]
-    jac[0, 2] += b * phi[1]
-    jac[1, 0] += b * phi[2]
-    jac[1, 2] -= b * phi[0]
-    jac[2, 0] -= b * phi[1]
-    jac[2, 1] += b * phi[0]
+    _add_skew(rot, a, phi)  # + a[φ×]
+    _add_skew(jac, b, phi)  # + b[φ×]
 
 
 # ---- quaternions (strict IEEE arithmetic) --------------------------------------------------------
@@ -183,27 +190,49 @@ def relative_rotvec(q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> No
 
 
 @nb.njit(cache=True)
-def relative_rotvecs(q_from: np.ndarray, q_to: np.ndarray, out: np.ndarray) -> None:
-    """Row by row, ``Log(C_fromᵀ C_to)`` (rad) of the normalised quaternions ``q_from``,
-    ``q_to`` (M, 4) into ``out`` (M, 3); NaN rows where either quaternion is not finite.
+def attitude_error_into(q_hat: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
+    """Row by row, the attitude error ``δθ = Log(q̂* ⊗ q)`` (rad) of quaternions ``q_hat``,
+    ``q`` (M, 4, scalar-last, any length) into ``out`` (M, 3): the rotation vector with
+    ``C = Ĉ Exp(δθ)`` (the filter's error convention, docs/models.md), angle in [0, π].
 
-    The batched counterpart of :func:`relative_rotvec` for error metrics: one compiled call
-    instead of a dozen numpy calls, which for a single episode's step cost more than the rest
-    of the arithmetic (docs/performance.md).
+    Both quaternions are scaled to unit length first, as scipy's ``Rotation.from_quat`` does;
+    a row where either is not finite (a diverged estimate, a recorded epoch without truth) is
+    NaN. The compiled kernel of :func:`attitude_error`; compiled code calls it directly.
     """
-    for i in range(q_from.shape[0]):
-        a0, a1, a2, a3 = q_from[i, 0], q_from[i, 1], q_from[i, 2], q_from[i, 3]
-        b0, b1, b2, b3 = q_to[i, 0], q_to[i, 1], q_to[i, 2], q_to[i, 3]
+    for i in range(q_hat.shape[0]):
+        a0, a1, a2, a3 = q_hat[i, 0], q_hat[i, 1], q_hat[i, 2], q_hat[i, 3]
+        b0, b1, b2, b3 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
         if not (np.isfinite(a0 + a1 + a2 + a3) and np.isfinite(b0 + b1 + b2 + b3)):
             out[i, 0] = out[i, 1] = out[i, 2] = np.nan
             continue
         na = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3)
         nb_ = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
-        # q_from* ⊗ q_to of the unit quaternions
+        # q̂* ⊗ q of the unit quaternions
         x, y, z, w = _product(
             -a0 / na, -a1 / na, -a2 / na, a3 / na, b0 / nb_, b1 / nb_, b2 / nb_, b3 / nb_
         )
         out[i, 0], out[i, 1], out[i, 2] = _log(x, y, z, w)
+
+
+def attitude_error(q_hat: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Attitude error ``δθ = Log(q̂* ⊗ q)`` (…, 3) in rad, i.e. ``C = Ĉ Exp(δθ)``, of scalar-last
+    quaternions ``q_hat`` and ``q`` (…, 4) broadcast against each other; any length (both are
+    normalised), angle in [0, π], NaN where either is not finite.
+
+    One compiled pass over the rows (:func:`attitude_error_into`): the dozen numpy calls of
+    the same formula cost more than its arithmetic at the sizes of an episode step
+    (docs/performance.md).
+    """
+    q_hat, q = np.broadcast_arrays(np.asarray(q_hat, dtype=float), np.asarray(q, dtype=float))
+    if q_hat.shape[-1:] != (4,):
+        raise ValueError(f"quaternions need a last axis of 4, got shape {q_hat.shape}")
+    out = np.empty((*q_hat.shape[:-1], 3))
+    attitude_error_into(
+        np.ascontiguousarray(q_hat.reshape(-1, 4)),
+        np.ascontiguousarray(q.reshape(-1, 4)),
+        out.reshape(-1, 3),
+    )
+    return out
 
 
 @nb.njit(cache=True)

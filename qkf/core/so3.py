@@ -48,21 +48,26 @@ def rodrigues_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def exp_matrix(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``Exp(φ)`` of rotation vectors ``φ`` (rad), shape ``(..., 3, 3)``."""
-    phi = np.asarray(phi, dtype=float)
-    a, b, _ = rodrigues_coefficients(np.linalg.norm(phi, axis=-1))
-    w = skew(phi)
-    eye = np.broadcast_to(np.eye(3), w.shape)
-    return eye + a[..., None, None] * w + b[..., None, None] * (w @ w)
+    """Rotation matrix ``Exp(φ) = I + a [φ×] + b [φ×]²`` of rotation vectors ``φ`` (rad),
+    shape ``(..., 3, 3)``."""
+    return _skew_series(phi, 0)
 
 
 def left_jacobian(phi: np.ndarray) -> np.ndarray:
-    """SO(3) left Jacobian ``J(φ) = ∫₀¹ Exp(τφ) dτ``, shape ``(..., 3, 3)``."""
+    """SO(3) left Jacobian ``J(φ) = ∫₀¹ Exp(τφ) dτ = I + b [φ×] + c [φ×]²``, shape
+    ``(..., 3, 3)``; ``φ`` in rad."""
+    return _skew_series(phi, 1)
+
+
+def _skew_series(phi: np.ndarray, first: int) -> np.ndarray:
+    """``I + k₀ [φ×] + k₁ [φ×]²`` with ``(k₀, k₁)`` two consecutive Rodrigues coefficients of
+    ``θ = |φ|``, from ``first`` on in ``(a, b, c)``: 0 gives ``Exp(φ)``, 1 gives ``J(φ)``."""
     phi = np.asarray(phi, dtype=float)
-    _, b, c = rodrigues_coefficients(np.linalg.norm(phi, axis=-1))
+    coeffs = rodrigues_coefficients(np.linalg.norm(phi, axis=-1))
+    k0, k1 = coeffs[first], coeffs[first + 1]
     w = skew(phi)
     eye = np.broadcast_to(np.eye(3), w.shape)
-    return eye + b[..., None, None] * w + c[..., None, None] * (w @ w)
+    return eye + k0[..., None, None] * w + k1[..., None, None] * (w @ w)
 
 
 def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:

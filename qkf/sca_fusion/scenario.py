@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from qkf.core.quat import compose_rotvecs
 from qkf.sca_fusion.config import Simulation
 from qkf.sca_fusion.differentiation import euler_term, quat_conj, quat_mul
 
@@ -112,7 +113,8 @@ def simulate(sim: Simulation) -> SimulatedData:
     out_idx = np.sort(rng_out.choice(n, size=n_out, replace=False)) if n_out else np.zeros(0, int)
     signs = rng_out.choice([-1.0, 1.0], size=(n_out, 3))
     nu[out_idx] += sim.sca_outliers.size_sigma * sca_sigma * signs
-    q_sca = (Rotation.from_quat(q) * Rotation.from_rotvec(nu)).as_quat()
+    q_sca = np.empty_like(q)
+    compose_rotvecs(q, nu, q_sca)  # q ⊗ Exp(ν), bit for bit scipy's composition
 
     acc_sigma = np.asarray(sim.acc_noise_rad_s2)
     bias = np.asarray(sim.acc_bias_rad_s2)

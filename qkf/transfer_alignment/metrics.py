@@ -11,7 +11,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
-from qkf.core.quat import relative_rotvecs
+from qkf.core.quat import attitude_error_into
 from qkf.transfer_alignment.states import GROUPS, N_STATES
 
 
@@ -41,14 +41,14 @@ def _state_errors_into(
     est: np.ndarray, q_true: np.ndarray, bias: np.ndarray, calib: np.ndarray, err: np.ndarray
 ) -> None:
     """:func:`state_errors` into ``err``, compiled: ``δθ = Log(q̂* ⊗ q)`` of the normalised
-    quaternions (:func:`~qkf.core.quat.relative_rotvecs`), ``Δb = b − b̂``, ``Δp = p − p̂``.
+    quaternions (:func:`~qkf.core.quat.attitude_error_into`), ``Δb = b − b̂``, ``Δp = p − p̂``.
 
     One call instead of a dozen numpy ones: for a single environment's decision period they
     cost more than the arithmetic (docs/performance.md). Compiled without fast-math, as the
     rotation core, so the numbers are those of the numpy expressions.
     """
     for i in range(est.shape[0]):
-        relative_rotvecs(est[i, :, 0:4], q_true[i], err[i, :, 0:3])
+        attitude_error_into(est[i, :, 0:4], q_true[i], err[i, :, 0:3])
         for k in range(est.shape[1]):
             for j in range(3):
                 err[i, k, 3 + j] = bias[i, k, j] - est[i, k, 4 + j]

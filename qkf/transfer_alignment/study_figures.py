@@ -1,5 +1,5 @@
 """The figure of a study (``study.png``): the summary metric per case and method with its
-interval, beside the cases' RMS curves and CRLBs (docs/studies.md)."""
+interval, beside the cases' RMS curves and CRLBs (the study file: :mod:`.study`)."""
 
 from __future__ import annotations
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from qkf.core.quat import attitude_error
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import (
     FilterRecord,
@@ -151,8 +151,7 @@ def mixture_covariance(
     rows = use & ok_mix[:, None]
     if rows.any():
         q_mix = np.broadcast_to(est_mix[:, None, 0:4], (b, n_act, 4))[rows]
-        rel = Rotation.from_quat(q_mix).inv() * Rotation.from_quat(est[rows][:, 0:4])
-        d[rows, 0:3] = rel.as_rotvec()
+        d[rows, 0:3] = attitude_error(q_mix, est[rows][:, 0:4])  # δθ = Log(Ĉ_mixᵀ Ĉ_a)
         d[rows, 3:] = est[rows][:, 4:] - np.broadcast_to(est_mix[:, None, 4:], (b, n_act, 12))[rows]
     spread = cov + d[..., :, None] * d[..., None, :]
     out = np.einsum("ba,baij->bij", w, np.where(use[..., None, None], spread, 0.0))

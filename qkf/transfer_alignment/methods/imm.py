@@ -83,10 +83,10 @@ from typing import Literal
 
 import numpy as np
 
-from qkf.core.so3 import quat_conj, quat_exp, quat_log, quat_mul, skew
+from qkf.core.quat import attitude_error
+from qkf.core.so3 import quat_exp, quat_mul, skew
 from qkf.transfer_alignment.config import Config, ImmConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
-from qkf.transfer_alignment.methods.bank_compiled import run_bank
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
@@ -98,6 +98,7 @@ from qkf.transfer_alignment.methods.mmae import (
     combine,
     neutral_dead,
     record_bank_covariance,
+    run_compiled_bank,
     step_bank,
 )
 from qkf.transfer_alignment.model import CALIB, N_STATES, THETA, omega_matrix, rate_matrix
@@ -253,7 +254,7 @@ def mix_bank(
     q = np.where(dead[:, None], np.array([0.0, 0.0, 0.0, 1.0]), kf.q_hat).reshape(b, n_act, 4)
     best = mu.argmax(axis=1)
     q_ref = q[np.arange(b), best][:, None]  # (B, 1, 4)
-    rel = quat_log(quat_mul(quat_conj(q_ref), q)).reshape(-1, 3)  # δθ_i = Log(Ĉ_refᵀ Ĉ_i)
+    rel = attitude_error(q_ref, q).reshape(-1, 3)  # δθ_i = Log(Ĉ_refᵀ Ĉ_i)
     x = np.concatenate([rel, kf.b_hat, kf.p_hat], axis=1)
     kq = (kappas * qp0)[None, :, None, None]  # κ_j q_p0, 1/s
     u = unit_q[:, None]  # (B, 1, 15, 15)
@@ -289,20 +290,9 @@ def imm_filter(cfg: Config, data: ScenarioData, prm: ImmConfig) -> MethodOutput:
     Logs the model probabilities per epoch (``probabilities``, (B, N, A)) and the arithmetic
     mean ``Σ μ_j κ_j`` (``kappa_arith``, (B, N))."""
     kappas = action_values(cfg)
-    n_act = kappas.size
-    trans = transition_matrix(n_act, prm.p_stay, prm.switching)
-    bank = new_filter(cfg, data, n_copies=n_act)  # row = trial * A + model
-    cov = CovarianceRecorder(cfg, data.n_trials)
-    run = run_bank(
-        bank,
-        data,
-        kappas,
-        cov.epochs,
-        cov.cov,
-        trans=trans,
-        mix_every=prm.mix_every,
-    )
-    return _output(prm, kappas, run.est, run.weights, ~run.live, cov.cov)
+    trans = transition_matrix(kappas.size, prm.p_stay, prm.switching)
+    _, run, cov = run_compiled_bank(cfg, data, kappas, trans=trans, mix_every=prm.mix_every)
+    return _output(prm, kappas, run.est, run.weights, ~run.live, cov)
 
 
 def _output(

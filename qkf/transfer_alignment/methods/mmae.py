@@ -18,12 +18,15 @@ compiled bank against them.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from qkf.core.so3 import quat_conj, quat_exp, quat_log, quat_mul
+from qkf.core.quat import attitude_error
+from qkf.core.so3 import quat_exp, quat_mul
 from qkf.transfer_alignment.config import Config, MmaeConfig
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
-from qkf.transfer_alignment.methods.bank_compiled import run_bank
+from qkf.transfer_alignment.methods.bank_compiled import BankRun, run_bank
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,
@@ -69,7 +72,7 @@ def combine(est: np.ndarray, w: np.ndarray) -> np.ndarray:
     out[..., 4:] = np.einsum("ban,banj->bnj", w, est[..., 4:])
     best = w.argmax(axis=1)  # (B, n)
     q_ref = np.take_along_axis(est[..., 0:4], best[:, None, :, None], axis=1)  # (B, 1, n, 4)
-    rel = quat_log(quat_mul(quat_conj(q_ref), est[..., 0:4]))  # δθ_j = Log(Ĉ_refᵀ Ĉ_j)
+    rel = attitude_error(q_ref, est[..., 0:4])  # δθ_j = Log(Ĉ_refᵀ Ĉ_j)
     mean_rel = np.einsum("ban,banj->bnj", w, rel)  # Σ_j w_j δθ_j
     q = quat_mul(q_ref[:, 0], quat_exp(mean_rel))  # Ĉ_ref Exp(Σ_j w_j δθ_j)
     out[..., 0:4] = q / np.linalg.norm(q, axis=-1, keepdims=True)
@@ -134,19 +137,21 @@ def run_mmae(cfg: Config, data: ScenarioData) -> MethodOutput:
     """The bank over all trials, compiled (module doc); logs the model probabilities per epoch
     (``weights``)."""
     kappas = action_values(cfg)
-    n_act = kappas.size
-    b = data.n_trials
-    bank = new_filter(cfg, data, n_copies=n_act)  # row = trial * A + model
-    cov = CovarianceRecorder(cfg, b)
-    run = run_bank(
-        bank,
-        data,
-        kappas,
-        cov.epochs,
-        cov.cov,
-        floor=cfg.adaptive.mmae.weight_floor,
-    )
-    return _output(bank, kappas, run.est, run.weights, cov.cov)
+    bank, run, cov = run_compiled_bank(cfg, data, kappas, floor=cfg.adaptive.mmae.weight_floor)
+    return _output(bank, kappas, run.est, run.weights, cov)
+
+
+def run_compiled_bank(
+    cfg: Config, data: ScenarioData, kappas: np.ndarray, **options: Any
+) -> tuple[TransferAlignmentKF, BankRun, np.ndarray]:
+    """A bank of one filter per κ of ``kappas`` (A,) and trial (rows ``trial · A + model``) over
+    all epochs of ``data`` in one compiled call: :func:`~.bank_compiled.run_bank` with
+    ``options`` (``floor`` for MMAE; ``trans``, ``mix_every`` for IMM). Returns the bank at the
+    end of the run, the run, and the mixture covariance at the sampled epochs (B, M, 15, 15)."""
+    bank = new_filter(cfg, data, n_copies=kappas.size)
+    cov = CovarianceRecorder(cfg, data.n_trials)
+    run = run_bank(bank, data, kappas, cov.epochs, cov.cov, **options)
+    return bank, run, cov.cov
 
 
 def _output(

@@ -36,10 +36,10 @@ A sweep at block length ``L`` epochs costs about ``A N² / (2L)`` trial-epochs p
 changes action): the fine lengths then sharpen the switching times the coarse ones found
 instead of revisiting long constant stretches (see :func:`search`).
 
-The errors are those of :func:`~qkf.transfer_alignment.metrics.state_errors` (attitude
-``δθ = Log(Ĉᵀ C_true)``, ``Δb = b − b̂``, ``Δp = p − p̂``), computed here with quaternion
-algebra because the search evaluates millions of epochs; the scores agree with
-:func:`~qkf.transfer_alignment.judging.estimate_scores` to rounding.
+The errors are :func:`~qkf.transfer_alignment.metrics.state_errors` (attitude
+``δθ = Log(Ĉᵀ C_true)``, ``Δb = b − b̂``, ``Δp = p − p̂``), one compiled call per chunk of the
+millions of epochs the search evaluates; the scores agree with
+:func:`~qkf.transfer_alignment.judging.estimate_scores` to rounding (the order of the sums).
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.judging import METRIC_STATES, STATE_METRIC, pooled
 from qkf.transfer_alignment.methods.base import action_values, new_filter, per_epoch
+from qkf.transfer_alignment.metrics import state_errors
 from qkf.transfer_alignment.scenario import ScenarioData
 from qkf.transfer_alignment.settled import settled_windows
 
@@ -125,31 +126,6 @@ class SearchResult:
         return np.array([pooled(self.scores[:, i]) for i in range(self.scores.shape[1])])
 
 
-def attitude_error(q_hat: np.ndarray, q_true: np.ndarray) -> np.ndarray:
-    """``δθ = Log(Ĉᵀ C_true)`` (..., 3) rad from scalar-last quaternions (..., 4).
-
-    The same rotation vector as ``(R(q̂)⁻¹ R(q)).as_rotvec()`` of scipy, ten times faster:
-    the product ``q̂* ⊗ q`` written out, then angle ``2 atan2(|v|, |w|)`` about ``v / |v|``
-    (the sign of ``w`` picks the short way round).
-    """
-    x1, y1, z1, w1 = (-q_hat[..., 0], -q_hat[..., 1], -q_hat[..., 2], q_hat[..., 3])
-    x2, y2, z2, w2 = (q_true[..., i] for i in range(4))
-    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
-    v = np.stack(
-        [
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=-1,
-    )
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, np.abs(w))
-    # angle / s → 2 / |q| as s → 0: the limit keeps an exact match at zero error
-    ratio = np.where(s > 0.0, angle / np.where(s > 0.0, s, 1.0), 2.0 / np.hypot(s, w))
-    return v * (np.where(w < 0.0, -ratio, ratio))[..., None]
-
-
 class _Scorer:
     """Sums ``S`` of squared weighted errors over each trial's settled epochs in a chunk, per
     row, divided by the trial's count of terms ``N_s,b · n`` (so ``J = sqrt(S)``: trials have
@@ -183,11 +159,9 @@ class _Scorer:
             return np.zeros(est.shape[0])
         sl = slice(k0 + skip, k0 + n)
         d = self.data
-        est = est[:, skip:]
-        err = np.empty((*est.shape[:2], 15))
-        err[..., 0:3] = attitude_error(est[..., 0:4], d.q_true[trials, sl])
-        err[..., 3:6] = d.bias[trials, sl] - est[..., 4:7]
-        err[..., 6:15] = d.calib[trials, sl] - est[..., 7:16]
+        err = state_errors(
+            est[:, skip:], d.q_true[trials, sl], d.bias[trials, sl], d.calib[trials, sl]
+        )
         per_epoch = np.sum((err[..., self.states] * self.scale[trials][:, None, :]) ** 2, axis=2)
         settled = np.arange(k0 + skip, k0 + n)[None, :] >= first[:, None]
         return np.sum(np.where(settled, per_epoch, 0.0), axis=1)
