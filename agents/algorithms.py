@@ -10,6 +10,7 @@ policy does not load torch. Installed packages can add algorithms through the en
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -19,13 +20,38 @@ from qkf.core.registry import Registry
 
 @dataclass(frozen=True)
 class Algorithm:
-    """An agent algorithm: ``load()`` returns its class (None for the tabular agent)."""
+    """An agent algorithm: ``load()`` returns its class (None for the tabular agent), and what
+    ``qkf train`` does differently for it: the runner that trains it, the format of its model
+    and what its training counts. Every such difference lives here, not in the training code.
+    """
 
     action_types: tuple[str, ...]
     load: Callable[[], Any] | None
     description: str
     policy: str = "MlpPolicy"  # the SB3 policy class name qkf train builds it with
     recurrent: bool = False  # the policy carries a hidden state between steps (predict(state=))
+    # module:function(plan, progress) -> model path: the runner of agents.training that trains it
+    runner: str = "agents.training.sb3_runner:run_sb3"
+    model_suffix: str = ".zip"  # SB3's save format; the tabular agent's is .npz
+    unit: str = "steps"  # what training counts: environment steps, or episodes
+    budget: str = "total_steps"  # the training config field that says how long to train
+    counter: str = "num_timesteps"  # the training.json field of the progress made
+
+    @property
+    def model_file(self) -> str:
+        """The final model's file name in a run folder (``model.zip``)."""
+        return "model" + self.model_suffix
+
+    def checkpoint_name(self, progress: int) -> str:
+        """A checkpoint's file name: SB3's ``CheckpointCallback`` naming (prefix ``model``,
+        ``model_<steps>_steps.zip``), or its counterpart in this algorithm's unit."""
+        return f"model_{progress}_{self.unit}{self.model_suffix}"
+
+    def checkpoint_progress(self, name: str) -> int | None:
+        """The progress in a checkpoint's file name; None if it is not this algorithm's."""
+        pattern = rf"^model_(\d+)_{re.escape(self.unit)}{re.escape(self.model_suffix)}$"
+        m = re.match(pattern, name)
+        return None if m is None else int(m.group(1))
 
 
 def _sb3(name: str) -> Callable[[], Any]:
@@ -40,7 +66,17 @@ def _sb3(name: str) -> Callable[[], Any]:
 ALGORITHMS: Registry[Algorithm] = Registry("agent", group="qkf.agents")
 """Agents for ``agent:`` of a training config."""
 ALGORITHMS.register(
-    "tabular", Algorithm(("discrete",), None, "tabular Q-learning (agents.tabular)")
+    "tabular",
+    Algorithm(
+        ("discrete",),
+        None,
+        "tabular Q-learning (agents.tabular)",
+        runner="agents.training.tabular_runner:run_tabular",
+        model_suffix=".npz",
+        unit="episodes",
+        budget="episodes",
+        counter="episodes",
+    ),
 )
 ALGORITHMS.register("dqn", Algorithm(("discrete",), _sb3("DQN"), "Stable-Baselines3 DQN"))
 ALGORITHMS.register("ppo", Algorithm(("discrete", "continuous"), _sb3("PPO"), "SB3 PPO"))

@@ -44,6 +44,7 @@ from agents.training.plan import (
     rounded_total_steps,
 )
 from agents.training.records import RUN_DIRS, RUN_FILES, checkpoints
+from qkf.core.registry import load_object
 
 
 def run_training(plan: TrainPlan, progress: bool = True) -> Path:
@@ -51,16 +52,9 @@ def run_training(plan: TrainPlan, progress: bool = True) -> Path:
     SB3 algorithm refuses raise ``ConfigError`` before anything is written."""
     if plan.complete:
         return plan.model_path
-    import torch  # the SB3 VecEnv has loaded it already
-
-    torch.set_num_threads(plan.cfg.torch_threads)
-    if plan.tabular:
-        from agents.training.tabular_runner import run_tabular
-
-        return run_tabular(plan, progress)
-    from agents.training.sb3_runner import run_sb3
-
-    return run_sb3(plan, progress)
+    runner = load_object(plan.algorithm.runner)  # the algorithm registry names its runner
+    path: Path = runner(plan, progress)
+    return path
 
 
 def train(

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from agents.algorithms import ALGORITHMS, algorithm_class
+from agents.algorithms import ALGORITHMS, Algorithm, algorithm_class
 from agents.config import TrainConfig
 from agents.training.records import RUN_DIRS, RUN_FILES, RunInfo, checkpoints, read_json
 from qkf.core.config import ConfigError
@@ -43,11 +43,6 @@ from qkf.core.io import OutputError, atomic_write_text, check_output_dir
 
 RESUMABLE = ("total_steps", "episodes", "eval.every_steps", "torch_threads")
 """Config fields ``resume`` may change: they say how long to go on, not what is trained."""
-
-
-def is_tabular(cfg: TrainConfig) -> bool:
-    """Whether the config's agent is the tabular one (no SB3 class)."""
-    return ALGORITHMS[cfg.agent].load is None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -73,8 +68,9 @@ class Rollout:
 
 
 def rollout_of(cfg: TrainConfig) -> Rollout | None:
-    """The granularity of an SB3 agent's training (None: tabular, or episode-based updates)."""
-    if is_tabular(cfg):
+    """The granularity of an SB3 agent's training (None: no SB3 class, or episode-based
+    updates)."""
+    if ALGORITHMS[cfg.agent].load is None:
         return None
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -126,12 +122,13 @@ class TrainPlan:
     notes: tuple[str, ...]  # what will be trained, for the user
 
     @property
-    def tabular(self) -> bool:
-        return is_tabular(self.cfg)
+    def algorithm(self) -> Algorithm:
+        """The registry entry of the agent: its runner, model format and progress unit."""
+        return ALGORITHMS[self.cfg.agent]
 
     @property
     def model_path(self) -> Path:
-        return self.out / ("model.npz" if self.tabular else "model.zip")
+        return self.out / self.algorithm.model_file
 
     def begin_run(self, info: RunInfo, fields: dict[str, Any]) -> None:
         """The first writes of a run: the previous run's files go (if the plan says so), then
@@ -229,10 +226,12 @@ def plan_training(
     out = Path(out_dir)
     total, rollout = rounded_total_steps(cfg)
     eff = cfg.model_copy(update={"total_steps": total}) if total != cfg.total_steps else cfg
-    tabular = is_tabular(cfg)
+    algo = ALGORITHMS[cfg.agent]
     notes: list[str] = []
-    if tabular:
-        notes.append(f"episodes {cfg.episodes} (tabular Q-learning, n_envs {cfg.n_envs})")
+    if algo.budget != "total_steps":
+        notes.append(
+            f"{algo.budget} {getattr(cfg, algo.budget)} ({algo.description}, n_envs {cfg.n_envs})"
+        )
     elif rollout is not None and total != cfg.total_steps:
         notes.append(f"total_steps {cfg.total_steps} → {total} ({rollout.describe()})")
     else:
@@ -246,8 +245,8 @@ def plan_training(
         )
 
     cfg_file = out / "config.yaml"
-    ckpts = checkpoints(out / "checkpoints", tabular)
-    any_ckpts = ckpts or checkpoints(out / "checkpoints", not tabular)
+    ckpts = checkpoints(out / "checkpoints", algo)
+    any_ckpts = ckpts or any(checkpoints(out / "checkpoints", ALGORITHMS[a]) for a in ALGORITHMS)
     previous = cfg_file.exists() or bool(any_ckpts) or any((out / n).exists() for n in RUN_FILES)
     if not previous:
         if resume:
@@ -289,10 +288,10 @@ def plan_training(
     if diffs:
         notes.append(f"--resume with the changed config:\n  {_diff_lines(diffs)}")
 
-    target, unit = (eff.episodes, "episodes") if tabular else (eff.total_steps, "steps")
+    target, unit = getattr(eff, algo.budget), algo.unit
     info = read_json(out / "training.json") or {}
-    model = out / ("model.npz" if tabular else "model.zip")
-    done_before = info.get("episodes" if tabular else "num_timesteps")
+    model = out / algo.model_file
+    done_before = info.get(algo.counter)
     if (
         not diffs
         and saved is not None
@@ -313,10 +312,9 @@ def plan_training(
         return plan(discard=True)
     done, ckpt = ckpts[-1]
     if done >= target and diffs:
-        key = "episodes" if tabular else "total_steps"
         raise ConfigError(
-            f"--resume: {key}: the newest checkpoint ({ckpt.name}) has {done} {unit} already; "
-            f"ask for more than {done}, or --force-new to start over"
+            f"--resume: {algo.budget}: the newest checkpoint ({ckpt.name}) has {done} {unit} "
+            f"already; ask for more than {done}, or --force-new to start over"
         )
     notes.append(f"resuming from {ckpt} ({done} of {target} {unit})")
     return plan(checkpoint=ckpt)

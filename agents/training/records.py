@@ -24,7 +24,6 @@ import io
 import json
 import math
 import os
-import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from agents.algorithms import Algorithm
 from agents.common.vec_env import make_vec_env
 from qkf.core.io import atomic_write_bytes, atomic_write_text
 
@@ -49,35 +49,23 @@ STAGING = ".staging"
 """The folder, inside ``checkpoints/``, ``eval/`` and ``best/``, where SB3's callbacks write
 before their files are renamed into place."""
 
-_CHECKPOINT = {
-    False: re.compile(r"^model_(\d+)_steps\.zip$"),
-    True: re.compile(r"^model_(\d+)_episodes\.npz$"),
-}
+
+def checkpoint_progress(path: Path, algo: Algorithm) -> int:
+    """The progress a checkpoint of ``algo`` was saved at (in ``algo.unit``)."""
+    progress = algo.checkpoint_progress(path.name)
+    if progress is None:
+        raise ValueError(f"{path}: not a checkpoint name ({algo.checkpoint_name(0)})")
+    return progress
 
 
-def checkpoint_name(progress: int, tabular: bool) -> str:
-    """A checkpoint's file name: SB3's ``CheckpointCallback`` naming (prefix ``model``), or its
-    tabular counterpart, whose progress is in episodes."""
-    return f"model_{progress}_episodes.npz" if tabular else f"model_{progress}_steps.zip"
-
-
-def checkpoint_progress(path: Path, tabular: bool) -> int:
-    """The progress a checkpoint was saved at (SB3: environment steps; tabular: episodes)."""
-    m = _CHECKPOINT[tabular].match(path.name)
-    if m is None:
-        raise ValueError(f"{path}: not a checkpoint name ({checkpoint_name(0, tabular)})")
-    return int(m.group(1))
-
-
-def checkpoints(folder: Path, tabular: bool) -> list[tuple[int, Path]]:
-    """``(progress, path)`` of the checkpoints in ``folder``, oldest first (progress: SB3
-    environment steps, tabular episodes)."""
+def checkpoints(folder: Path, algo: Algorithm) -> list[tuple[int, Path]]:
+    """``(progress, path)`` of the checkpoints of ``algo`` in ``folder``, oldest first."""
     found = []
     if folder.is_dir():
         for p in folder.iterdir():
-            m = _CHECKPOINT[tabular].match(p.name)
-            if m and p.is_file():
-                found.append((int(m.group(1)), p))
+            progress = algo.checkpoint_progress(p.name)
+            if progress is not None and p.is_file():
+                found.append((progress, p))
     return sorted(found)
 
 

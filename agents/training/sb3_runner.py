@@ -241,11 +241,14 @@ def _imitate(plan: TrainPlan, model: Any, env: VecEnv) -> None:
 
 def run_sb3(plan: TrainPlan, progress: bool) -> Path:
     """Train the plan's SB3 agent; returns the path of the saved model."""
+    import torch  # SB3 has loaded it already
+
+    torch.set_num_threads(plan.cfg.torch_threads)
     cfg, out = plan.cfg, plan.out
     algo = algorithm_class(cfg.agent)
     seed = cfg.seed
     if plan.checkpoint is not None:  # new episodes, drawn reproducibly from the progress made
-        seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, tabular=False))
+        seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, plan.algorithm))
     env: VecEnv = monitored(make_vec_env(cfg, cfg.n_envs, seed))
     if cfg.reward_scale != 1.0 or cfg.reward_clip is not None:
         env = ScaledReward(env, cfg.reward_scale, cfg.reward_clip)

@@ -23,7 +23,6 @@ from agents.training.records import (
     EvaluationHistory,
     RecordSchedule,
     RunInfo,
-    checkpoint_name,
     evaluate,
     evaluation_env,
     write_best,
@@ -64,7 +63,7 @@ def run_tabular(plan: TrainPlan, progress: bool) -> Path:
         """Checkpoint, evaluate (best model), log; once per step count."""
         steps = agent.steps
         if schedule.take(steps):
-            name = checkpoint_name(agent.episodes, tabular=True)
+            name = plan.algorithm.checkpoint_name(agent.episodes)
             agent.save(out / CHECKPOINTS / name)
             returns, lengths = evaluate(agent, held_out)
             new_best = history.add(steps, returns, lengths)
@@ -102,6 +101,11 @@ def run_tabular(plan: TrainPlan, progress: bool) -> Path:
         record()
     finally:
         writer.close()
-    agent.save(out / "model.npz")
-    info.write(episodes=agent.episodes, num_timesteps=agent.steps, complete=True, model="model.npz")
-    return out / "model.npz"
+    agent.save(plan.model_path)
+    info.write(
+        episodes=agent.episodes,
+        num_timesteps=agent.steps,
+        complete=True,
+        model=plan.model_path.name,
+    )
+    return plan.model_path

@@ -33,6 +33,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
 from qkf.transfer_alignment.config import MAX_TRIALS, TUNING_SEEDS
@@ -186,7 +187,7 @@ class ZooEntry:
         return self.folder / f"seed_{seed}"
 
     def model_name(self) -> str:
-        return "model.npz" if self.train_cfg.agent == "tabular" else "model.zip"
+        return ALGORITHMS[self.train_cfg.agent].model_file
 
     def seed_model(self, seed: int) -> Path:
         return self.seed_dir(seed) / self.model_name()
