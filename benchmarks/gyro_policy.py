@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3 import PPO
@@ -49,7 +50,7 @@ def policy_scores(
     env = VecFrameStack(base, frame_stack) if frame_stack > 1 else base
     model = PPO.load(model_path, device="cpu")
     env.seed(int(seeds[0]))  # sub-environment i: seed seeds[0] + i
-    obs = env.reset()
+    obs: Any = env.reset()
     settled = np.array([hs.episode(cfg, int(s)).settled_from for s in seeds])
     total = np.zeros(n)
     kappas = []

@@ -92,11 +92,10 @@ def test_rows_without_valid_epochs_and_counts() -> None:
 def test_blocks_are_independent_of_their_order() -> None:
     """Each block's level depends on its states only: reversing the table reverses the output."""
     view = _view(3)
-    rec = view.record
     table = block_table(LEVEL_BLOCKS)
-    args = (rec.nis_att, rec.nis_rate, rec.nis, rec.var, rec.rate, view.valid, view.last)
-    fwd = period_summary(*args, view.p0_sigma, table).levels
-    rev = period_summary(*args, view.p0_sigma, table[::-1].copy()).levels
+    args = (view.record, view.valid, view.last, view.p0_sigma)
+    fwd = period_summary(*args, table).levels
+    rev = period_summary(*args, table[::-1].copy()).levels
     np.testing.assert_array_equal(fwd, rev[:, ::-1])
 
 

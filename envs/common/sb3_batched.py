@@ -1,14 +1,11 @@
 """What the batched Stable-Baselines3 adapters of the environments share
 (:class:`envs.transfer_alignment.sb3.BatchedTransferAlignmentSB3Env`,
 :class:`envs.redundant_gyros.sb3.BatchedGyroSB3Env`): SB3's ``VecEnv`` over a *driver* that
-steps N episodes at once.
+steps N episodes at once (:class:`~envs.common.driver.BatchedDriver`; sub-environment ``i``
+seeded with ``s`` draws the episodes of the single environment reset with seed ``s + i``).
 
-A driver has ``rngs`` (one generator per episode: sub-environment ``i`` seeded with ``s``
-draws the episodes of the single environment reset with seed ``s + i``), ``reset_envs(rows)``
-(their first observations) and ``step(actions)`` (an output with ``obs``, ``reward``,
-``terminated``, ``truncated``, ``kappa`` and ``errors``, one row per episode). SB3's API is
-same-step autoreset: when an episode ends ``step_wait`` returns the first observation of the
-next one and puts the last in ``info["terminal_observation"]`` (with
+SB3's API is same-step autoreset: when an episode ends ``step_wait`` returns the first
+observation of the next one and puts the last in ``info["terminal_observation"]`` (with
 ``info["TimeLimit.truncated"]`` and ``info["diverged"]``). Importing this module imports
 Stable-Baselines3 (and torch), which ``import envs`` does not.
 """
@@ -16,31 +13,28 @@ Stable-Baselines3 (and torch), which ``import envs`` does not.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Generic
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from envs.common.driver import DriverT
 
-class BatchedSB3VecEnv(VecEnv):
-    """SB3's ``VecEnv`` over a batched episode driver (module docstring). ``vector_actions``:
-    the driver takes (N, D) actions (a continuous or multi-dimensional action space), else
-    (N,)."""
 
-    def __init__(
-        self,
-        driver: Any,
-        num_envs: int,
-        observation_space: spaces.Space[Any],
-        action_space: spaces.Space[Any],
-        vector_actions: bool,
-    ) -> None:
+class BatchedSB3VecEnv(VecEnv, Generic[DriverT]):
+    """SB3's ``VecEnv`` over a batched episode driver (module docstring), one sub-environment
+    per episode of the driver. ``vector_actions``: the driver takes (N, D) actions (a
+    continuous or multi-dimensional action space), else (N,)."""
+
+    def __init__(self, driver: DriverT, vector_actions: bool) -> None:
         self._driver = driver
         self._vector_actions = vector_actions
         self.render_mode = None
-        super().__init__(num_envs, observation_space, action_space)
+        self.cfg = driver.cfg
+        self.actions = driver.actions
+        self.episode_steps = driver.episode_steps
+        super().__init__(len(driver.rngs), driver.observation_space, driver.action_space)
         self._actions: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:

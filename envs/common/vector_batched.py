@@ -1,32 +1,34 @@
 """What the batched Gymnasium vector environments share
 (:class:`envs.transfer_alignment.vector.BatchedTransferAlignmentEnv`,
 :class:`envs.redundant_gyros.vector.BatchedGyroCalibrationEnv`): Gymnasium's ``VectorEnv`` over
-a *driver* that steps N episodes at once (``rngs``, ``reset_envs(rows)``, ``step(actions)``,
-as :mod:`envs.common.sb3_batched` says), with next-step autoreset. Sub-environment ``i`` of
-``reset(seed=s)`` is the single environment reset with seed ``s + i``, step for step.
+a *driver* that steps N episodes at once (:class:`~envs.common.driver.BatchedDriver`), with
+next-step autoreset. Sub-environment ``i`` of ``reset(seed=s)`` is the single environment reset
+with seed ``s + i``, step for step.
 
 ``render_mode="rgb_array"``: every sub-environment records its episode as the single
 environment does (one :class:`~envs.common.render.EpisodeTrace` each) and ``render()`` returns
 one frame per sub-environment; an autoreset starts its frame anew. A subclass says what a step
-records (:meth:`BatchedVectorEnv.curves`) and adds its own ``info`` entries
-(:meth:`BatchedVectorEnv.step_info`, :meth:`BatchedVectorEnv.reset_info`).
+records and adds its own ``info`` entries (:class:`~envs.common.driver.EpisodeHooks`).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Generic
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from envs.common.driver import DriverT, EpisodeHooks
 from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
 
 
-class BatchedVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
-    """Gymnasium's ``VectorEnv`` over a batched episode driver (module docstring)."""
+class BatchedVectorEnv(
+    VectorEnv[np.ndarray, np.ndarray, np.ndarray], EpisodeHooks, Generic[DriverT]
+):
+    """Gymnasium's ``VectorEnv`` over a batched episode driver (module docstring); as many
+    sub-environments as the driver has episodes."""
 
     metadata = {  # noqa: RUF012 - Gymnasium's convention
         "autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -35,36 +37,20 @@ class BatchedVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     }
 
     def __init__(
-        self,
-        driver: Any,
-        num_envs: int,
-        observation_space: spaces.Space[Any],
-        action_space: spaces.Space[Any],
-        traces: list[EpisodeTrace],
-        render_mode: str | None,
+        self, driver: DriverT, traces: list[EpisodeTrace], render_mode: str | None
     ) -> None:
         check_render_mode(render_mode)
         self.render_mode = render_mode
-        self.num_envs = num_envs
+        self.num_envs = num_envs = len(driver.rngs)
         self._driver = driver
-        self.single_action_space = action_space
-        self.single_observation_space = observation_space
-        self.action_space = batch_space(action_space, num_envs)
-        self.observation_space = batch_space(observation_space, num_envs)
+        self.cfg = driver.cfg
+        self.episode_steps = driver.episode_steps
+        self.single_action_space = driver.action_space
+        self.single_observation_space = driver.observation_space
+        self.action_space = batch_space(driver.action_space, num_envs)
+        self.observation_space = batch_space(driver.observation_space, num_envs)
         self._needs_reset = np.ones(num_envs, dtype=bool)
         self._traces = traces
-
-    def curves(self, out: Any) -> np.ndarray:
-        """What each sub-environment's frame records after step ``out``: (N, curves)."""
-        raise NotImplementedError
-
-    def step_info(self, out: Any) -> dict[str, Any]:
-        """``info`` entries of a step beyond ``kappa``, ``diverged`` and ``errors``."""
-        return {}
-
-    def reset_info(self) -> dict[str, Any]:
-        """``info`` entries of a reset beyond ``kappa`` and ``diverged``."""
-        return {}
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None

@@ -52,20 +52,8 @@ Obs    Meaning (float32; no truth)                                 Typical scale
 8      κ position in [0, 1] on the action scale                     0 … 1
 =====  ==========================================================  ===========================
 
-Observation ``"v1"`` (8 entries: v0 without the elapsed fraction):
-
-=====  ==========================================================  ===========================
-Obs    Meaning (float32; no truth)                                 Typical scale
-=====  ==========================================================  ===========================
-0      ``log10(σ_b / σ_b0)``, the UKF's bias sd over its prior sd   −4 … 0
-1      same, λ                                                      −3 … 0
-2      same, δ_u                                                    −5 … 0
-3      same, δ_v                                                    −5 … 0
-4      mean NIS ``ν² / S`` over the period                          ~1 (jumps at an onset)
-5      log-likelihood gain over a κ = 1 copy, per step              −1 … 1
-6      ``|ω̂_H|`` of the healthy triad at the period's end, deg/s    0 … 6
-7      κ position in [0, 1] on the action scale                     0 … 1
-=====  ==========================================================  ===========================
+Observation ``"v1"`` (8 entries): v0 without the elapsed fraction (entry 6), the later entries
+moved up by one; the NIS (entry 4) jumps at the drawn onset.
 
 Observation ``"v2"`` (7 entries: v1 without the likelihood gain, so no κ = 1 copy of the filter
 runs): ``log10(σ/σ₀)`` of the four states, mean NIS, ``|ω̂_H|``, κ position
@@ -89,11 +77,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-import gymnasium as gym
 import numpy as np
 
-from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
-from envs.redundant_gyros.episodes import GyroEpisodes
+from envs.common.render import EpisodeTrace, check_render_mode
+from envs.common.single import SingleEpisodeEnv
+from envs.redundant_gyros.episodes import GyroEpisodes, GyroStep
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE
@@ -136,10 +124,8 @@ def gyro_curves(episodes: GyroEpisodes, errors: np.ndarray) -> np.ndarray:
         )
 
 
-class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
+class RedundantGyroCalibrationEnv(SingleEpisodeEnv[GyroEpisodes]):
     """Choose the calibration UKF's process-noise factor every period (module docstring)."""
-
-    metadata = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}  # noqa: RUF012
 
     def __init__(
         self,
@@ -152,67 +138,33 @@ class RedundantGyroCalibrationEnv(gym.Env[np.ndarray, Any]):
         observation: str = "v0",
     ) -> None:
         check_render_mode(render_mode)
-        if observation not in GYRO_OBSERVATIONS:
-            known = ", ".join(GYRO_OBSERVATIONS)
-            raise ValueError(f"unknown observation {observation!r}; known: {known}")
-        self.observation = observation
-        self.obs_size = OBS_SIZES[observation]
-        self.render_mode = render_mode
         self.episodes = ep = GyroEpisodes(
             1, scenario, action_type, reward, overrides, period_s, observation
         )
-        self.cfg, self.unit, self.setup, self.t = ep.cfg, ep.unit, ep.setup, ep.t
+        self.observation = observation
+        self.obs_size = OBS_SIZES[observation]
+        self.unit, self.setup, self.t = ep.unit, ep.setup, ep.t
         self.target, self.period, self.n_steps = ep.target, ep.period, ep.n_steps
-        self.episode_steps = ep.episode_steps
         self.reward = ep.reward
-        self.actions = ep.actions
-        self.action_space = ep.action_space
-        self.observation_space = ep.observation_space
         self._gyro = self.unit.ids[self.setup.gyro]
-        self._started = False
-        self._trace = gyro_trace(ep, f"RedundantGyroCalibration (gyro {self._gyro})")
+        trace = gyro_trace(ep, f"RedundantGyroCalibration (gyro {self._gyro})")
+        super().__init__(ep, trace, render_mode)
 
-    def _info(self) -> dict[str, Any]:
+    def reset_info(self) -> dict[str, Any]:
+        """The calibrated ``gyro`` and, in a scenario with one, the drawn ``onset_s``."""
         info: dict[str, Any] = {"gyro": self._gyro}
         onset = self.episodes.onset(0)
         if onset is not None:
             info["onset_s"] = onset
         return info
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self.episodes.rngs[0] = self.np_random
-        obs = self.episodes.reset_envs(np.array([0]))[0]
-        self._started = True
-        self._trace.clear()
-        return obs, {"kappa": 1.0, "diverged": False, **self._info()}
+    def run_period(self, action: Any) -> GyroStep:
+        kappa, position = self.actions(action)
+        return self.episodes.run(np.array([kappa]), np.array([position]))
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if not self._started:
-            raise RuntimeError("call reset() before step()")
-        kappa, pos = self.actions(action)
-        out = self.episodes.run(np.array([kappa]), np.array([pos]))
-        info: dict[str, Any] = {
-            "kappa": kappa,
-            "diverged": bool(out.terminated[0]),
-            "t_s": float(out.t_s[0]),
-            "errors": out.errors[0],
-            **self._info(),
-        }
-        if self.render_mode is not None:  # record only what render() will draw
-            curves = gyro_curves(self.episodes, out.errors)[0]
-            self._trace.append(info["t_s"], kappa, list(curves))
-        return (
-            out.obs[0],
-            float(out.reward[0]),
-            bool(out.terminated[0]),
-            bool(out.truncated[0]),
-            info,
-        )
+    def step_info(self, out: GyroStep) -> dict[str, Any]:
+        """The time and the :meth:`reset_info` entries."""
+        return {"t_s": float(out.t_s[0]), **self.reset_info()}
 
-    def render(self) -> np.ndarray | None:
-        """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8;
-        ``None`` without a render mode."""
-        return self._trace.frame() if self.render_mode is not None else None
+    def curves(self, out: GyroStep) -> np.ndarray:
+        return gyro_curves(self.episodes, out.errors)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 from gymnasium import spaces
@@ -53,6 +53,17 @@ class GyroStep:
     t_s: np.ndarray  # (N,) time of the run at the period's last epoch, s
 
 
+class GyroOptions(TypedDict, total=False):
+    """The keywords the batched front ends pass on to :class:`GyroEpisodes` (its defaults where
+    one is left out): ``(num_envs, scenario, **options)``."""
+
+    action_type: Literal["discrete", "continuous"]
+    reward: str | None
+    overrides: list[str] | None
+    period_s: float | None
+    observation: str
+
+
 class GyroEpisodes(BatchedUKF):
     """N calibration episodes of one gyro config (module docstring): a
     :class:`~qkf.redundant_gyros.batched_ukf.BatchedUKF` with actions, observations and
@@ -84,6 +95,7 @@ class GyroEpisodes(BatchedUKF):
             reward = "likelihood" if GYRO_OBSERVATIONS[observation].uses_nominal else "oracle"
         if reward not in GYRO_REWARDS:
             raise ValueError(f"unknown reward {reward!r}; known: {', '.join(GYRO_REWARDS)}")
+        self.observation_version = observation
         if scenario is None:
             scenario = DEFAULT_SCENARIOS.get(observation, DEFAULT_SCENARIOS["v0"])
         self.cfg = (
@@ -180,4 +192,4 @@ class GyroEpisodes(BatchedUKF):
         return None if np.isnan(v) else v
 
 
-__all__ = ["DEFAULT_SCENARIOS", "GyroEpisodes", "GyroStep"]
+__all__ = ["DEFAULT_SCENARIOS", "GyroEpisodes", "GyroOptions", "GyroStep"]

@@ -13,35 +13,23 @@ Stable-Baselines3 (and torch), which ``import envs`` does not.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Unpack
 
 from envs.common.sb3_batched import BatchedSB3VecEnv
-from envs.redundant_gyros.episodes import GyroEpisodes
+from envs.redundant_gyros.episodes import GyroEpisodes, GyroOptions
 from qkf.redundant_gyros.config import GyrosConfig
 
 
-class BatchedGyroSB3Env(BatchedSB3VecEnv):
-    """N gyro-calibration episodes in one batched compiled UKF, as an SB3 ``VecEnv``."""
+class BatchedGyroSB3Env(BatchedSB3VecEnv[GyroEpisodes]):
+    """N gyro-calibration episodes in one batched compiled UKF, as an SB3 ``VecEnv``. The
+    arguments are the single environment's, but ``render_mode``."""
 
     def __init__(
         self,
         num_envs: int,
         scenario: str | Path | GyrosConfig | None = None,
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str | None = None,
-        overrides: list[str] | None = None,
-        period_s: float | None = None,
-        observation: str = "v0",
+        **options: Unpack[GyroOptions],
     ) -> None:
-        self.episodes = GyroEpisodes(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation
-        )
-        self.cfg = self.episodes.cfg
-        self.actions = self.episodes.actions
-        super().__init__(
-            self.episodes,
-            num_envs,
-            self.episodes.observation_space,
-            self.episodes.action_space,
-            vector_actions=self.actions.action_type == "continuous",
-        )
+        self.episodes = GyroEpisodes(num_envs, scenario, **options)
+        continuous = self.episodes.actions.action_type == "continuous"
+        super().__init__(self.episodes, vector_actions=continuous)

@@ -12,48 +12,33 @@ single environment's ``render()``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Unpack
 
 import numpy as np
 
 from envs.common.vector_batched import BatchedVectorEnv
 from envs.redundant_gyros.env import gyro_curves, gyro_trace
-from envs.redundant_gyros.episodes import GyroEpisodes, GyroStep
+from envs.redundant_gyros.episodes import GyroEpisodes, GyroOptions, GyroStep
 from qkf.redundant_gyros.config import GyrosConfig
 
 
-class BatchedGyroCalibrationEnv(BatchedVectorEnv):
+class BatchedGyroCalibrationEnv(BatchedVectorEnv[GyroEpisodes]):
     """N gyro-calibration episodes in one batched compiled UKF, as a Gymnasium ``VectorEnv``
-    (the machinery: :class:`envs.common.vector_batched.BatchedVectorEnv`)."""
+    (the machinery: :class:`envs.common.vector_batched.BatchedVectorEnv`). The arguments are
+    the single environment's."""
 
     def __init__(
         self,
         num_envs: int,
         scenario: str | Path | GyrosConfig | None = None,
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str | None = None,
-        overrides: list[str] | None = None,
-        period_s: float | None = None,
-        observation: str = "v0",
+        *,
         render_mode: str | None = None,
+        **options: Unpack[GyroOptions],
     ) -> None:
-        self.episodes = GyroEpisodes(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation
-        )
-        self.cfg = self.episodes.cfg
-        self.episode_steps = self.episodes.episode_steps
-        traces = [
-            gyro_trace(self.episodes, f"RedundantGyroCalibration ({observation}) #{i}")
-            for i in range(num_envs)
-        ]
-        super().__init__(
-            self.episodes,
-            num_envs,
-            self.episodes.observation_space,
-            self.episodes.action_space,
-            traces,
-            render_mode,
-        )
+        self.episodes = GyroEpisodes(num_envs, scenario, **options)
+        title = f"RedundantGyroCalibration ({self.episodes.observation_version})"
+        traces = [gyro_trace(self.episodes, f"{title} #{i}") for i in range(num_envs)]
+        super().__init__(self.episodes, traces, render_mode)
 
     def curves(self, out: GyroStep) -> np.ndarray:
         return gyro_curves(self.episodes, out.errors)

@@ -6,8 +6,9 @@ transfer-alignment filter runs with the process-noise factor κ the agent chose.
 ``ceil(duration / period)`` steps, from the config (``env.unwrapped.episode_steps``); the
 environment truncates itself there, so ``gym.make`` and ``gym.make_vec`` agree for any duration.
 
-Arguments: ``scenario`` (preset name, config path or ``Config``), ``action_type``
-(``discrete`` | ``continuous``), ``reward`` (a name of
+Arguments (``scenario`` positional, the others keywords; their defaults are
+:class:`~envs.transfer_alignment.episodes.EpisodeDriver`'s): ``scenario`` (preset name, config
+path or ``Config``), ``action_type`` (``discrete`` | ``continuous``), ``reward`` (a name of
 :data:`~envs.transfer_alignment.rewards.REWARDS`), ``overrides`` (``--set`` style),
 ``period_s``, ``observation`` (``v0`` … ``v2``, a name of
 :data:`~envs.transfer_alignment.observations.OBSERVATIONS`, fixed by the registered id),
@@ -62,13 +63,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Unpack
 
-import gymnasium as gym
 import numpy as np
 
-from envs.common.render import RENDER_FPS, RENDER_MODES, EpisodeTrace, check_render_mode
-from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver, StepOutput
+from envs.common.render import EpisodeTrace, check_render_mode
+from envs.common.single import SingleEpisodeEnv
+from envs.transfer_alignment.episodes import EpisodeDriver, EpisodeOptions, StepOutput
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.states import DISPLAY_UNIT
 
@@ -83,49 +84,25 @@ def calibration_rms(values: np.ndarray) -> np.ndarray:
         return np.sqrt(np.mean(np.square(values[..., CALIBRATION]), axis=-1))
 
 
-class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
+class TransferAlignmentEnv(SingleEpisodeEnv[EpisodeDriver]):
     """Choose the filter's process-noise factor every decision period (see module docstring)."""
-
-    metadata = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}  # noqa: RUF012
 
     def __init__(
         self,
         scenario: str | Path | Config = "paper",
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str = "likelihood",
-        overrides: list[str] | None = None,
-        period_s: float = DEFAULT_PERIOD_S,
-        observation: str = "v0",
+        *,
         render_mode: str | None = None,
         data: str | Path | Sequence[str | Path] | None = None,
-        controls: str | None = None,
-        base: str | None = None,
-        expert: str | None = None,
+        **options: Unpack[EpisodeOptions],
     ) -> None:
         check_render_mode(render_mode)
-        self.render_mode = render_mode
-        self._driver = EpisodeDriver(
-            1, scenario, action_type, reward, overrides, period_s, observation, data,
-            controls, base, expert,
-        )  # fmt: skip
-        self.episode_steps = self._driver.episode_steps
-        self.cfg = self._driver.cfg
-        self.actions = self._driver.actions
-        self.controls = self._driver.controls
-        self.action_space = self._driver.action_space
-        self.observation_space = self._driver.observation_space
-        self._started = False
-        self._trace = calibration_trace(self._driver, f"TransferAlignment ({observation})")
+        driver = EpisodeDriver(1, scenario, data=data, **options)
+        title = f"TransferAlignment ({driver.observation_version})"
+        super().__init__(driver, calibration_trace(driver, title), render_mode)
+        self.controls = driver.controls
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        self._driver.rngs[0] = self.np_random
-        obs = self._driver.reset_env(0)
-        self._started = True
-        self._trace.clear()
-        return obs, {"kappa": 1.0, "diverged": False, **self._data_info()}
+    def reset_info(self) -> dict[str, Any]:
+        return self._data_info()
 
     def _data_info(self) -> dict[str, Any]:
         """``reward_available`` (False: recorded data without truth, the reward is 0) and, on
@@ -136,44 +113,29 @@ class TransferAlignmentEnv(gym.Env[np.ndarray, Any]):
             info["file"] = str(core.recorded.files[int(core.file_index[0])].path)
         return info
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if not self._started:
-            raise RuntimeError("call reset() before step()")
-        if self.controls is not None:  # v4: the moves of the controls
-            out = self._driver.step(np.asarray(action)[None])
-            kappa = float(out.kappa[0])
-        else:
-            kappa, position = self.actions(action)
-            out = self._driver.core.step(np.array([kappa]), np.array([position]))
-        info = {
-            "kappa": kappa,
-            "diverged": bool(out.terminated[0]),
-            "errors": out.errors[0],
+    def run_period(self, action: Any) -> StepOutput:
+        """One period with ``action``: κ, or v4's moves of the controls."""
+        if self.controls is not None:
+            return self._driver.step(np.asarray(action)[None])
+        kappa, position = self.actions(action)
+        return self._driver.core.step(np.array([kappa]), np.array([position]))
+
+    def step_info(self, out: StepOutput) -> dict[str, Any]:
+        """The CRLB, the time, the data entries and v4's moves."""
+        return {
             "crlb": out.crlb[0],
             "t_s": float(out.t_s[0]),
             **self._data_info(),
             **_moves_info(out, 0),
         }
-        if self.render_mode is not None:  # record only what render() will draw
-            self._trace.append(info["t_s"], kappa, calibration_curves(self._driver, out)[0])
-        return (
-            out.obs[0],
-            float(out.reward[0]),
-            bool(out.terminated[0]),
-            bool(out.truncated[0]),
-            info,
-        )
+
+    def curves(self, out: StepOutput) -> np.ndarray:
+        return calibration_curves(self._driver, out)
 
     def expert_actions(self) -> np.ndarray:
         """The expert's action for the next step (``expert=``, v4; an array of the action
         space's shape)."""
         return self._driver.expert_actions()[0]
-
-    def render(self) -> np.ndarray | None:
-        """``render_mode="rgb_array"``: the episode so far as an RGB frame, ``(H, W, 3)`` uint8
-        (κ chosen per step; the calibration σ of the filter, the true error and the CRLB).
-        ``None`` without a render mode."""
-        return self._trace.frame() if self.render_mode is not None else None
 
 
 def _moves_info(out: StepOutput, row: int) -> dict[str, Any]:

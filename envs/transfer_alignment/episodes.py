@@ -15,7 +15,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 from gymnasium import spaces
@@ -334,6 +334,21 @@ class BatchedEpisodes:
         )
 
 
+class EpisodeOptions(TypedDict, total=False):
+    """The keywords every front end of the task passes on to :class:`EpisodeDriver` (its
+    defaults where one is left out): ``TransferAlignmentEnv(scenario, **options)`` and the
+    batched ``(num_envs, scenario, **options)``."""
+
+    action_type: Literal["discrete", "continuous"]
+    reward: str
+    overrides: list[str] | None
+    period_s: float
+    observation: str
+    controls: str | None
+    base: str | None
+    expert: str | None
+
+
 class EpisodeDriver:
     """What the environment front ends share: the config, the action map, the batched episodes
     and one generator per episode (each episode's data is drawn from its own generator).
@@ -347,10 +362,10 @@ class EpisodeDriver:
     def __init__(
         self,
         n: int,
-        scenario: str | Path | Config,
-        action_type: str,
-        reward: str,
-        overrides: list[str] | None,
+        scenario: str | Path | Config = "paper",
+        action_type: str = "discrete",
+        reward: str = "likelihood",
+        overrides: list[str] | None = None,
         period_s: float = DEFAULT_PERIOD_S,
         observation: str = "v0",
         data: str | Path | Sequence[str | Path] | None = None,
@@ -367,6 +382,7 @@ class EpisodeDriver:
         if observation not in OBSERVATIONS:
             known = ", ".join(OBSERVATIONS.names())
             raise ValueError(f"unknown observation {observation!r}; known: {known}")
+        self.observation_version = observation
         self.cfg = scenario if isinstance(scenario, Config) else load_scenario(scenario, overrides)
         recorded = None
         if data is not None:  # the data set the step, duration and episodes (their files)

@@ -111,11 +111,7 @@ class PeriodView:
     def summary(self) -> Summary:
         """The period's NIS means, covariance levels of :data:`LEVEL_BLOCKS` and rate, in one
         compiled pass (:mod:`envs.transfer_alignment.period_summary`); computed once per view."""
-        rec = self.record
-        return period_summary(
-            rec.nis_att, rec.nis_rate, rec.nis, rec.var, rec.rate, self.valid, self.last,
-            self.p0_sigma, _LEVEL_TABLE,
-        )  # fmt: skip
+        return period_summary(self.record, self.valid, self.last, self.p0_sigma, _LEVEL_TABLE)
 
     def nis_means(self, empty_att: float, empty_rate: float, empty_all: float) -> np.ndarray:
         """:func:`masked_mean` of the NIS att., NIS rate and NIS columns (N, 3), ``empty_*``

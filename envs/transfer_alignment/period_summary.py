@@ -27,6 +27,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.transfer_alignment.filter import FilterRecord
 
 DEG = np.pi / 180.0
 
@@ -90,11 +91,7 @@ def _summarise(
 
 
 def period_summary(
-    nis_att: np.ndarray,
-    nis_rate: np.ndarray,
-    nis: np.ndarray,
-    var: np.ndarray,
-    rate: np.ndarray,
+    record: FilterRecord,
     valid: np.ndarray,
     last: np.ndarray,
     p0_sigma: np.ndarray,
@@ -102,10 +99,10 @@ def period_summary(
 ) -> Summary:
     """The module's reductions for N episodes of a period of P epochs.
 
-    ``nis_att``, ``nis_rate``, ``nis`` (N, P): the filter's NIS records (NaN where none);
-    ``var`` (N, P, 15) diag P in SI; ``rate`` (N, P, 3) ω̂ in rad/s; ``valid`` (N, P) bool;
-    ``last`` (N,) the last valid epoch; ``p0_sigma`` (15,) prior sigmas (SI); ``blocks``
-    (K, 2) int, ``[start, stop)`` of each block of states.
+    ``record``: the filter over the period (its NIS columns, (N, P), NaN where none; ``var``
+    (N, P, 15) diag P in SI; ``rate`` (N, P, 3) ω̂ in rad/s); ``valid`` (N, P) bool; ``last``
+    (N,) the last valid epoch; ``p0_sigma`` (15,) prior sigmas (SI); ``blocks`` (K, 2) int,
+    ``[start, stop)`` of each block of states.
     """
     n = valid.shape[0]
     out = Summary(
@@ -116,11 +113,11 @@ def period_summary(
         rate_norm=np.empty(n),
     )
     _summarise(
-        nis_att,
-        nis_rate,
-        nis,
-        var,
-        rate,
+        record.nis_att,
+        record.nis_rate,
+        record.nis,
+        record.var,
+        record.rate,
         np.ascontiguousarray(valid, dtype=np.bool_),
         np.ascontiguousarray(last, dtype=np.int64),
         np.asarray(p0_sigma, dtype=float) ** 2,

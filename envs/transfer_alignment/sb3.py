@@ -14,41 +14,28 @@ Stable-Baselines3 (and torch), which ``import envs`` does not.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Unpack
 
 import numpy as np
 
 from envs.common.sb3_batched import BatchedSB3VecEnv
-from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver
+from envs.transfer_alignment.episodes import EpisodeDriver, EpisodeOptions
 from qkf.transfer_alignment.config import Config
 
 
-class BatchedTransferAlignmentSB3Env(BatchedSB3VecEnv):
-    """N transfer-alignment episodes in one batched filter, as an SB3 ``VecEnv``."""
+class BatchedTransferAlignmentSB3Env(BatchedSB3VecEnv[EpisodeDriver]):
+    """N transfer-alignment episodes in one batched filter, as an SB3 ``VecEnv``. The
+    arguments are the single environment's, but ``render_mode`` and ``data``."""
 
     def __init__(
         self,
         num_envs: int,
         scenario: str | Path | Config = "paper",
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str = "likelihood",
-        overrides: list[str] | None = None,
-        period_s: float = DEFAULT_PERIOD_S,
-        observation: str = "v0",
-        controls: str | None = None,
-        base: str | None = None,
-        expert: str | None = None,
+        **options: Unpack[EpisodeOptions],
     ) -> None:
-        driver = EpisodeDriver(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation,
-            controls=controls, base=base, expert=expert,
-        )  # fmt: skip
-        self.cfg = driver.cfg
-        self.actions = driver.actions
+        driver = EpisodeDriver(num_envs, scenario, **options)
         vector = driver.actions.action_type == "continuous" or driver.controls is not None
-        super().__init__(
-            driver, num_envs, driver.observation_space, driver.action_space, vector_actions=vector
-        )
+        super().__init__(driver, vector_actions=vector)
 
     def expert_actions(self) -> np.ndarray:
         """The expert's actions for every episode's next period (``expert=``, v4):

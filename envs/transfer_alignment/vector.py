@@ -14,53 +14,41 @@ sub-environment autoreset starts its frame anew.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Unpack
 
 import numpy as np
 
 from envs.common.vector_batched import BatchedVectorEnv
 from envs.transfer_alignment.env import calibration_curves, calibration_trace
-from envs.transfer_alignment.episodes import DEFAULT_PERIOD_S, EpisodeDriver, StepOutput
+from envs.transfer_alignment.episodes import EpisodeDriver, EpisodeOptions, StepOutput
 from qkf.transfer_alignment.config import Config
 
 
-class BatchedTransferAlignmentEnv(BatchedVectorEnv):
+class BatchedTransferAlignmentEnv(BatchedVectorEnv[EpisodeDriver]):
     """N transfer-alignment episodes in one batched filter, as a Gymnasium ``VectorEnv``
-    (the machinery: :class:`envs.common.vector_batched.BatchedVectorEnv`)."""
+    (the machinery: :class:`envs.common.vector_batched.BatchedVectorEnv`). The arguments are
+    the single environment's, but ``data``."""
 
     def __init__(
         self,
         num_envs: int,
         scenario: str | Path | Config = "paper",
-        action_type: Literal["discrete", "continuous"] = "discrete",
-        reward: str = "likelihood",
-        overrides: list[str] | None = None,
-        period_s: float = DEFAULT_PERIOD_S,
-        observation: str = "v0",
+        *,
         render_mode: str | None = None,
-        controls: str | None = None,
-        base: str | None = None,
-        expert: str | None = None,
-        **kwargs: Any,
+        data: object = None,
+        **options: Unpack[EpisodeOptions],
     ) -> None:
-        if kwargs.get("data") is not None:  # not silently a simulation instead
+        if data is not None:  # not silently a simulation instead
             raise ValueError(
                 "the batched vector environment does not replay recorded data; use "
                 "gym.make(id, data=...) per environment (e.g. in SubprocVecEnv)"
             )
-        driver = EpisodeDriver(
-            num_envs, scenario, action_type, reward, overrides, period_s, observation,
-            controls=controls, base=base, expert=expert,
-        )  # fmt: skip
-        self.episode_steps = driver.episode_steps
-        self.cfg = driver.cfg
+        driver = EpisodeDriver(num_envs, scenario, **options)
         traces = [
-            calibration_trace(driver, f"TransferAlignment ({observation}) #{i}")
+            calibration_trace(driver, f"TransferAlignment ({driver.observation_version}) #{i}")
             for i in range(num_envs)
         ]
-        super().__init__(
-            driver, num_envs, driver.observation_space, driver.action_space, traces, render_mode
-        )
+        super().__init__(driver, traces, render_mode)
 
     def curves(self, out: StepOutput) -> np.ndarray:
         return calibration_curves(self._driver, out)
