@@ -393,7 +393,7 @@ def test_bad_input_names_file_row_and_column(tmp_path: Path, sim: ScenarioData, 
         ("run.csv", b"\nt_s\n", "line 1 is blank"),
         ("run.csv", b"t_\xb5s\n", "line 1: not UTF-8 text"),
         ("run.txt", b"t_s\n0\n", "not a .csv, .parquet or .pq file"),
-        ("run.csv", "folder", "a folder, not a data file"),
+        ("run.csv", "folder", "is a directory, not a data file"),
     ],
 )
 def test_missing_and_empty_files(

@@ -289,22 +289,11 @@ def _plots(run: FusionRun, truth: TruthComparison | None) -> dict[str, bytes]:
 
     fig, ax = plt.subplots(figsize=(9, 4))
     for k, sol in enumerate(run.solutions):
-        ax.plot(
-            sol.t,
-            sol.epoch_sigma_sca,
-            ".",
-            ms=3,
-            color="C0",
-            label="star camera" if not k else None,
-        )
-        ax.plot(
-            sol.t,
-            sol.epoch_sigma_acc,
-            ".",
-            ms=3,
-            color="C1",
-            label="accelerometer" if not k else None,
-        )
+        for sigma, color, label in (
+            (sol.epoch_sigma_sca, "C0", "star camera"),
+            (sol.epoch_sigma_acc, "C1", "accelerometer"),
+        ):
+            ax.plot(sol.t, sigma, ".", ms=3, color=color, label=label if not k else None)
     ax.set_yscale("log")
     ax.set_xlabel("t (s)")
     ax.set_ylabel("epoch sigma factor")

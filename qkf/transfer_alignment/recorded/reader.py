@@ -26,7 +26,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +37,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from qkf.core.config import ConfigError
+from qkf.core.csvfile import DataFileError, check_path
 from qkf.transfer_alignment.recorded.columns import (
     ALL_COLUMNS,
     EXTENSIONS,
@@ -295,6 +296,12 @@ def _first(mask: np.ndarray) -> int | None:
     return i if rows[i] else None
 
 
+def _at_first(mask: np.ndarray, message: Callable[[int], str]) -> list[tuple[int, str]]:
+    """``[(i, message(i))]`` for the first True row ``i`` of ``mask``; empty if there is none."""
+    i = _first(mask)
+    return [] if i is None else [(i, message(i))]
+
+
 def _cell_problems(
     names: tuple[str, ...], block: np.ndarray, empty: np.ndarray
 ) -> list[tuple[int, str]]:
@@ -417,41 +424,32 @@ class _Collector:
 
     def _time(self, t: np.ndarray) -> list[tuple[int, str]]:
         prev = np.concatenate([[self.last_t], t[:-1]])
-        i = _first(~(t > prev))
-        if i is None:
-            return []
-        return [
-            (
-                i,
+        return _at_first(
+            ~(t > prev),
+            lambda i: (
                 f"{TIME}: t = {float(t[i])!r} s after t = {float(prev[i])!r} s in row "
-                f"{self.rows + i}; time must be strictly increasing",
-            )
-        ]
+                f"{self.rows + i}; time must be strictly increasing"
+            ),
+        )
 
     def _rate(self, names: tuple[str, ...], w: np.ndarray) -> list[tuple[int, str]]:
         norm = np.sqrt(np.einsum("ij,ij->i", w, w))
-        i = _first(norm > self.limits.max_rate_rad_s)  # NaN (absent): False
-        if i is None:
-            return []
-        return [
-            (
-                i,
+        return _at_first(
+            norm > self.limits.max_rate_rad_s,  # NaN (absent): False
+            lambda i: (
                 f"{', '.join(names)}: |ω| = {float(norm[i]):.6g} rad/s, above "
-                f"{self.limits.max_rate_rad_s:g} rad/s: deg/s given? (rates are rad/s)",
-            )
-        ]
+                f"{self.limits.max_rate_rad_s:g} rad/s: deg/s given? (rates are rad/s)"
+            ),
+        )
 
     def _quaternion(self, names: tuple[str, ...], norm: np.ndarray) -> list[tuple[int, str]]:
-        i = _first(np.abs(norm - 1.0) > self.limits.quaternion_tolerance)  # NaN: False
-        if i is None:
-            return []
-        return [
-            (
-                i,
-                f"{', '.join(names)}: not a unit quaternion (norm {float(norm[i])!r}; at most "
-                f"{self.limits.quaternion_tolerance:g} off 1 is renormalised)",
-            )
-        ]
+        return _at_first(
+            np.abs(norm - 1.0) > self.limits.quaternion_tolerance,  # NaN: False
+            lambda i: (
+                f"{', '.join(names)}: not a unit quaternion (norm {float(norm[i])!r}; at "
+                f"most {self.limits.quaternion_tolerance:g} off 1 is renormalised)"
+            ),
+        )
 
     def array(self, group: str) -> np.ndarray:
         """The rows of one group, (n, k): a view of its array, or a copy if the array is over
@@ -618,13 +616,10 @@ def read_recorded(path: str | Path, limits: ReadLimits | None = None) -> Recorde
     """Read and check one recorded file (CSV or Parquet); :class:`RecordedDataError` names the
     file, and the row and column of the first bad input."""
     limits = ReadLimits() if limits is None else limits
-    path = Path(path)
-    if path.is_dir():
-        raise RecordedDataError(f"{path}: a folder, not a data file")
-    if not path.exists():
-        raise RecordedDataError(f"{path}: no such data file")
-    if not path.is_file():
-        raise RecordedDataError(f"{path}: not a regular file")
+    try:
+        path = check_path(path)  # every problem's data files are refused alike
+    except DataFileError as exc:
+        raise RecordedDataError(str(exc)) from None
     kind = EXTENSIONS.get(path.suffix.lower())
     if kind is None:
         raise RecordedDataError(f"{path}: not a .csv, .parquet or .pq file")
