@@ -16,11 +16,18 @@ from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
     PositiveFloat,
+    ProblemConfig,
     StrictModel,
 )
 
 Vector3 = tuple[float, float, float]
 SensorName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.+-]{1,64}$")]
+
+
+def _nonzero(v: Vector3, what: str) -> None:
+    """``ValueError`` for a direction that is the zero vector (no direction at all)."""
+    if sum(c * c for c in v) < 1e-12:
+        raise ValueError(f"{what} must not be the zero vector")
 
 
 class Sensor(StrictModel):
@@ -46,8 +53,7 @@ class Sensor(StrictModel):
 
     @model_validator(mode="after")
     def _boresight(self) -> Sensor:
-        if sum(c * c for c in self.boresight) < 1e-12:
-            raise ValueError("boresight must not be the zero vector")
+        _nonzero(self.boresight, "boresight")
         return self
 
 
@@ -97,14 +103,11 @@ class Simulation(StrictModel):
 
     @model_validator(mode="after")
     def _sun(self) -> Simulation:
-        if sum(c * c for c in self.sun_direction) < 1e-12:
-            raise ValueError("sun_direction must not be the zero vector")
+        _nonzero(self.sun_direction, "sun_direction")
         return self
 
 
-class AlignmentConfig(StrictModel):
-    name: str = "custom"
-    description: str = ""
+class AlignmentConfig(ProblemConfig):
     reference: SensorName
     prior_deg: PositiveFloat = 0.5
     sensors: Annotated[list[Sensor], Field(min_length=2)]

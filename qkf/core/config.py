@@ -155,6 +155,15 @@ class StrictModel(BaseModel):
         return schema
 
 
+class ProblemConfig(StrictModel):
+    """The root of a problem's config: its ``name`` and ``description`` (shown in reports and
+    recorded in ``run.json``), then the problem's own sections (docs/architecture.md, "Problem
+    shape")."""
+
+    name: str = "custom"
+    description: str = ""
+
+
 class TimeWindow(StrictModel):
     """A time interval ``[start_s, end_s)`` in seconds, non-empty."""
 

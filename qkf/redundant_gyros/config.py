@@ -18,6 +18,7 @@ from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
     PositiveFloat,
+    ProblemConfig,
     StrictModel,
     workload_error,
 )
@@ -372,9 +373,7 @@ class RunConfig(StrictModel):
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
 
 
-class GyrosConfig(StrictModel):
-    name: str = "custom"
-    description: str = ""
+class GyrosConfig(ProblemConfig):
     unit: UnitConfig = UnitConfig()
     scenario: Scenario = Scenario()
     fdi: FdiConfig = FdiConfig()

@@ -17,6 +17,7 @@ from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
     PositiveFloat,
+    ProblemConfig,
     StrictModel,
     TimeWindow,
 )
@@ -134,9 +135,7 @@ class Simulation(StrictModel):
         return self
 
 
-class FusionConfig(StrictModel):
-    name: str = "custom"
-    description: str = ""
+class FusionConfig(ProblemConfig):
     estimator: Estimator = Estimator()
     arcs: Arcs = Arcs()
     data: DataConfig = DataConfig()

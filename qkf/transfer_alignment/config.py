@@ -27,6 +27,7 @@ from qkf.core.config import (
     ConfigError,
     NonNegativeFloat,
     PositiveFloat,
+    ProblemConfig,
     StrictModel,
     TimeWindow,
     apply_override,
@@ -662,9 +663,7 @@ class Sweep(StrictModel):
     values: list[Any] = Field(min_length=1)
 
 
-class Config(StrictModel):
-    name: str = "custom"
-    description: str = ""
+class Config(ProblemConfig):
     scenario: Scenario = Scenario()
     filter: FilterConfig = FilterConfig()
     run: RunConfig = RunConfig()

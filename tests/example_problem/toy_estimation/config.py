@@ -8,7 +8,7 @@ from typing import Annotated
 from pydantic import Field, model_validator
 
 from qkf.core import presets
-from qkf.core.config import PositiveFloat, StrictModel
+from qkf.core.config import PositiveFloat, ProblemConfig, StrictModel
 
 PRESETS = "toy_estimation"
 """The problem's preset folder in the preset tree (``configs/toy_estimation/``)."""
@@ -42,9 +42,7 @@ class Bench(StrictModel):
     level: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.99  # probability of the NEES band
 
 
-class ToyConfig(StrictModel):
-    name: str = "custom"
-    description: str = ""
+class ToyConfig(ProblemConfig):
     walk: Walk = Walk()
     bench: Bench = Bench()
 
