@@ -56,13 +56,8 @@ from envs.transfer_alignment.observations import OBSERVATIONS
 from envs.transfer_alignment.rewards import REWARDS
 from qkf.core.config import ConfigError
 from qkf.core.io import OutputError, check_output_dir
-from qkf.transfer_alignment.config import (
-    MAX_TRIALS,
-    Config,
-    GlrConfig,
-    check_workload,
-    load_config,
-)
+from qkf.transfer_alignment.adaptive import GlrConfig
+from qkf.transfer_alignment.config import MAX_TRIALS, Config, check_workload, load_config
 from qkf.transfer_alignment.methods import (
     METHODS,
     MethodOutput,

@@ -24,6 +24,7 @@ import argparse
 import time
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -55,7 +56,7 @@ def filterpy_reference(seconds: float) -> float:
     steps = -(-sampler.n_epochs // period)
     kappas = np.logspace(-2, 2, 11)
     rng = np.random.default_rng(0)
-    state = {"k": 0, "ep": sampler.draw(0)}
+    state: dict[str, Any] = {"k": 0, "ep": sampler.draw(0)}
     agent = CalibrationUKF(sampler.setup, float(sampler.dt[0]))
     copy = CalibrationUKF(sampler.setup, float(sampler.dt[0]))
 

@@ -80,14 +80,14 @@ def table(study: Path, policies: list[str], room: Path | None = None) -> list[st
         best = min(classical, key=lambda m: pooled(values, m))
         focus = [m for m in [moves, *policies] if m is not None and m in values]
         versus = {
-            v.method: v
-            for v in versus_rows(case["label"], rows, focus, boot.resamples, boot.level, seed)
-            if v.other == best
+            row.method: row
+            for row in versus_rows(case["label"], rows, focus, boot.resamples, boot.level, seed)
+            if row.other == best
         }
         cells = [f"`{best}` ({pooled(values, best):.4g})"]
         if moves is not None and moves in versus:
-            v = versus[moves]
-            cells.append(f"{v.ratio:.3f} / {v.median:.3f} {WORDS[v.verdict]}")
+            vs = versus[moves]
+            cells.append(f"{vs.ratio:.3f} / {vs.median:.3f} {WORDS[vs.verdict]}")
             cells.append(stage_means(folder if other is None else other, moves))
         else:
             cells += ["–", "–"]
@@ -95,13 +95,13 @@ def table(study: Path, policies: list[str], room: Path | None = None) -> list[st
             if p not in versus:
                 cells.append("–")
                 continue
-            v = versus[p]
+            vs = versus[p]
             share = "–"
             if moves is not None:
                 gap = pooled(values, best) - pooled(values, moves)
                 if gap > 0:
                     share = f"{(pooled(values, best) - pooled(values, p)) / gap:.0%}"
-            cells.append(f"{v.ratio:.3f} / {v.median:.3f} {WORDS[v.verdict]}; {share}")
+            cells.append(f"{vs.ratio:.3f} / {vs.median:.3f} {WORDS[vs.verdict]}; {share}")
         lines.append(f"| `{case['label']}` | " + " | ".join(cells) + " |")
     return lines
 

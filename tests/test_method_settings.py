@@ -22,15 +22,10 @@ from typer.testing import CliRunner
 
 from qkf.cli import app
 from qkf.core.config import ConfigError, PositiveFloat, StrictModel
+from qkf.transfer_alignment.adaptive import AdaptiveConfig, AlarmBurstConfig, ImmConfig
 from qkf.transfer_alignment.alarms import NIS_ALARM, QUIET_S, change_clock
 from qkf.transfer_alignment.benchmark import run_benchmark
-from qkf.transfer_alignment.config import (
-    AdaptiveConfig,
-    AlarmBurstConfig,
-    ImmConfig,
-    builtin_section,
-    load_config,
-)
+from qkf.transfer_alignment.config import builtin_section, load_config
 from qkf.transfer_alignment.methods import (
     METHODS,
     MethodSpecError,

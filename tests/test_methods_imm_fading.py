@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from qkf.core.config import ConfigError
 from qkf.core.so3 import quat_exp, quat_log, quat_mul
-from qkf.transfer_alignment.config import FadingConfig, ImmConfig, load_config
+from qkf.transfer_alignment.adaptive import FadingConfig, ImmConfig
+from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods import METHODS, validate_output
 from qkf.transfer_alignment.methods.base import action_values, new_filter
 from qkf.transfer_alignment.methods.fading import (

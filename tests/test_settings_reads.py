@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from qkf.core.config import StrictModel
-from qkf.transfer_alignment.config import AdaptiveConfig, ClockConfig, TunedConfig
+from qkf.transfer_alignment.adaptive import AdaptiveConfig, ClockConfig, TunedConfig
 from qkf.transfer_alignment.methods import METHODS
 from qkf.transfer_alignment.methods.base import (
     declared_sections,

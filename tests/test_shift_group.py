@@ -11,7 +11,8 @@ import pytest
 import yaml
 
 from qkf.core.presets import preset_dir
-from qkf.transfer_alignment.config import TUNING_SEEDS, Scenario, load_config
+from qkf.transfer_alignment.adaptive import TUNING_SEEDS
+from qkf.transfer_alignment.config import Scenario, load_config
 from qkf.transfer_alignment.families import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.methods.on_mixture import TRAINING_MIXTURE, mixture_config
 from qkf.transfer_alignment.scenario import draw_events, family_names, trial_streams

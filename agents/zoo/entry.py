@@ -36,7 +36,8 @@ from pydantic import Field, field_validator, model_validator
 from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
-from qkf.transfer_alignment.config import MAX_TRIALS, TUNING_SEEDS
+from qkf.transfer_alignment.adaptive import TUNING_SEEDS
+from qkf.transfer_alignment.config import MAX_TRIALS
 
 ZOO_DIR = Path(__file__).resolve().parent
 """The shipped zoo: ``agents/zoo/`` (one folder per entry, ``best/`` the promoted one)."""

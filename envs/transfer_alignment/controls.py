@@ -48,7 +48,8 @@ import numpy as np
 from gymnasium import spaces
 
 from qkf.core.registry import Registry
-from qkf.transfer_alignment.config import Config, GlrConfig, NisRuleConfig
+from qkf.transfer_alignment.adaptive import GlrConfig, NisRuleConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.alarm_burst import nis_per_row
 from qkf.transfer_alignment.methods.base import settings_of
 from qkf.transfer_alignment.methods.glr import GlrPeriodDecision, run_glr

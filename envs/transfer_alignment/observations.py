@@ -61,8 +61,9 @@ from envs.transfer_alignment.period_summary import (
     update_evidence,
 )
 from qkf.core.registry import Registry
+from qkf.transfer_alignment.adaptive import AlarmBurstConfig
 from qkf.transfer_alignment.alarms import change_clock
-from qkf.transfer_alignment.config import AlarmBurstConfig, Config
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import FilterRecord
 from qkf.transfer_alignment.methods.alarm_burst import run_alarm_burst
 from qkf.transfer_alignment.methods.base import settings_of

@@ -1,10 +1,11 @@
 """Campaigns: several cases of one problem, each run into its own folder of one output folder.
 
-A study or a sweep (:mod:`qkf.transfer_alignment.study`) is a campaign: it runs a list of cases, writes each case
-folder whole as soon as that case is done, then the summary files beside them, and keeps a
-``run.json`` (:mod:`qkf.core.manifest`) that lists every file it wrote. Nothing here knows a
-problem: a problem supplies its cases (anything with a ``folder``) and a
-:class:`CaseRunner` that runs one case, writes its folder, and reads a finished one back.
+A study or a sweep (:mod:`qkf.transfer_alignment.study`) is a campaign: it runs a list of
+cases, writes each case folder whole as soon as that case is done, then the summary files
+beside them, and keeps a ``run.json`` (:mod:`qkf.core.manifest`) that lists every file it
+wrote. Nothing here knows a problem: a problem supplies its cases (anything with a
+``folder``) and a :class:`CaseRunner` that runs one case, writes its folder, and reads a
+finished one back.
 
 What the output folder may hold is checked before any work (:meth:`Campaign.prepare`): an
 interrupted campaign is finished with ``resume`` (finished cases are read back, not

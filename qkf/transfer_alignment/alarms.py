@@ -4,7 +4,7 @@ Shared by the ``alarm-burst`` method (docs/methods.md, "Alarm burst") and the en
 observation v2 (docs/environment.md, "Observation v2"), so that both see the same change: both
 build their clock with :func:`change_clock` from the same configured settings,
 ``adaptive.alarm_burst.nis_alarm`` and ``quiet_s`` (defaults and meaning:
-:class:`~qkf.transfer_alignment.config.AlarmBurstConfig`).
+:class:`~qkf.transfer_alignment.adaptive.AlarmBurstConfig`).
 
 A decision period *alarms* when its mean NIS per measurement row exceeds ``nis_alarm``. A
 *change* starts at an alarm that follows at least ``quiet_s`` without one; the alarms that
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import AlarmBurstConfig
+from qkf.transfer_alignment.adaptive import AlarmBurstConfig
 
 _DEFAULTS = AlarmBurstConfig()
 

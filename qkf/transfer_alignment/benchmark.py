@@ -33,6 +33,7 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
+from qkf.transfer_alignment.adaptive import TUNING_SEEDS, QkfConfig
 from qkf.transfer_alignment.chunk_cache import (
     cached_prepare,
     chunk_key,
@@ -42,7 +43,7 @@ from qkf.transfer_alignment.chunk_cache import (
     store_prepared,
     to_entry,
 )
-from qkf.transfer_alignment.config import TUNING_SEEDS, Config, QkfConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.crlb import CrlbResult, crlb
 from qkf.transfer_alignment.divergence import Divergence, find_divergences
 from qkf.transfer_alignment.methods import (

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qkf.transfer_alignment.adaptive import AlarmBurstConfig
 from qkf.transfer_alignment.alarms import change_clock
-from qkf.transfer_alignment.config import AlarmBurstConfig, Config
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     EpochRecords,
     MethodOutput,

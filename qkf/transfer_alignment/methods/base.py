@@ -11,7 +11,7 @@ A method with settings declares the section of ``adaptive`` it reads and the
 with :func:`method_settings`: ``adaptive.<section>`` in YAML and ``--set`` then reach it, are
 checked before any work and are recorded in the run's manifest (docs/architecture.md, "Recipe:
 add a method"). The built-in methods' sections are fields of
-:class:`~qkf.transfer_alignment.config.AdaptiveConfig`.
+:class:`~qkf.transfer_alignment.adaptive.AdaptiveConfig`.
 """
 
 from __future__ import annotations

@@ -14,13 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from qkf.transfer_alignment.config import (
-    ClockConfig,
-    Config,
-    OptunaConfig,
-    OracleConfig,
-    TunedConfig,
-)
+from qkf.transfer_alignment.adaptive import ClockConfig, OptunaConfig, OracleConfig, TunedConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import action_values, settings_of
 from qkf.transfer_alignment.methods.clock import run_clock
 from qkf.transfer_alignment.methods.fixed import run_kf_tuned

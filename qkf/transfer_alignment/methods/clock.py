@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.config import ClockConfig, Config
+from qkf.transfer_alignment.adaptive import ClockConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,

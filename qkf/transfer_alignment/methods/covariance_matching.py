@@ -45,7 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, CovarianceMatchingConfig
+from qkf.transfer_alignment.adaptive import CovarianceMatchingConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,

@@ -64,7 +64,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, FadingConfig
+from qkf.transfer_alignment.adaptive import FadingConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,

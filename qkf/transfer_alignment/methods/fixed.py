@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.core.montecarlo import progress_stage
-from qkf.transfer_alignment.config import Config, TunedConfig
+from qkf.transfer_alignment.adaptive import TunedConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.judging import estimate_scores, pooled
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,

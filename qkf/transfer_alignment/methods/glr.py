@@ -52,7 +52,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, GlrConfig
+from qkf.transfer_alignment.adaptive import GlrConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     EpochRecords,
     MethodOutput,

@@ -44,7 +44,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, HindsightConfig
+from qkf.transfer_alignment.adaptive import HindsightConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,

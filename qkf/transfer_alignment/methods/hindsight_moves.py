@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, HindsightConfig
+from qkf.transfer_alignment.adaptive import HindsightConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,

@@ -85,7 +85,8 @@ import numpy as np
 
 from qkf.core.quat import attitude_error
 from qkf.core.so3 import quat_exp, quat_mul, skew
-from qkf.transfer_alignment.config import Config, ImmConfig
+from qkf.transfer_alignment.adaptive import ImmConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,

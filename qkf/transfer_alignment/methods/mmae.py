@@ -24,7 +24,8 @@ import numpy as np
 
 from qkf.core.quat import attitude_error
 from qkf.core.so3 import quat_exp, quat_mul
-from qkf.transfer_alignment.config import Config, MmaeConfig
+from qkf.transfer_alignment.adaptive import MmaeConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
 from qkf.transfer_alignment.methods.bank_compiled import BankRun, run_bank
 from qkf.transfer_alignment.methods.base import (

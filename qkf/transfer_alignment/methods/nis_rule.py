@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from qkf.transfer_alignment.adaptive import NisRuleConfig
 from qkf.transfer_alignment.alarms import ChangeClock
-from qkf.transfer_alignment.config import Config, NisRuleConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.alarm_burst import run_periodic_rule
 from qkf.transfer_alignment.methods.base import MethodOutput, uses_settings
 from qkf.transfer_alignment.scenario import ScenarioData

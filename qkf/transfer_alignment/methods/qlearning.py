@@ -28,7 +28,8 @@ import math
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, QkfConfig
+from qkf.transfer_alignment.adaptive import QkfConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     EpochRecords,
     MethodOutput,

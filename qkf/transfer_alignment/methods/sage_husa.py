@@ -29,7 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.transfer_alignment.config import Config, SageHusaConfig
+from qkf.transfer_alignment.adaptive import SageHusaConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
     action_values,

@@ -57,7 +57,8 @@ import numpy as np
 
 from qkf.core.config import StrictModel
 from qkf.core.montecarlo import progress_stage
-from qkf.transfer_alignment.config import Config, OptunaConfig, epochs_of
+from qkf.transfer_alignment.adaptive import OptunaConfig
+from qkf.transfer_alignment.config import Config, epochs_of
 from qkf.transfer_alignment.judging import estimate_scores, pooled
 from qkf.transfer_alignment.methods.alarm_burst import AlarmBurstSchedule, run_alarm_burst
 from qkf.transfer_alignment.methods.base import Method, MethodOutput, action_values, uses_settings

@@ -94,7 +94,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.transfer_alignment import model
-from qkf.transfer_alignment.config import Config, VbakfConfig
+from qkf.transfer_alignment.adaptive import VbakfConfig
+from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
