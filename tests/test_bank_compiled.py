@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qkf.transfer_alignment.config import ImmConfig
+from qkf.transfer_alignment.adaptive import ImmConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.bank_compiled import (
     combine_compiled,
