@@ -10,7 +10,8 @@ import pytest
 
 from qkf.core import kalman, units
 from qkf.core.config import ConfigError
-from qkf.transfer_alignment.config import CovarianceMatchingConfig, VbakfConfig, load_config
+from qkf.transfer_alignment.adaptive import CovarianceMatchingConfig, VbakfConfig
+from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods import validate_output
 from qkf.transfer_alignment.methods.base import MethodOutput, new_filter
 from qkf.transfer_alignment.methods.covariance_matching import (
