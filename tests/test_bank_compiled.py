@@ -13,13 +13,9 @@ from scipy.spatial.transform import Rotation
 from qkf.transfer_alignment.adaptive import ImmConfig
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.bank_compiled import (
-    combine_compiled,
     imm_probabilities,
-    mix_bank_compiled,
-    mixture_covariance_compiled,
     mmae_log_weights,
     run_bank,
-    unit_calibration_noise_compiled,
 )
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, mixture_covariance
@@ -38,6 +34,12 @@ from qkf.transfer_alignment.methods.mmae import (
     update_log_weights,
 )
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
+from tests.bank_reference import (
+    combine_compiled,
+    mix_bank_compiled,
+    mixture_covariance_compiled,
+    unit_calibration_noise_compiled,
+)
 from tests.conftest import cfg_with
 
 # ---- U ------------------------------------------------------------------------------------------

@@ -26,7 +26,6 @@ from qkf.transfer_alignment.methods.vbakf import (
     run_vbakf,
     scaled_measurement,
     vb_step,
-    vb_step_compiled,
 )
 from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch, vb_epoch_serial
 from qkf.transfer_alignment.scenario import simulate
@@ -256,18 +255,18 @@ def _assert_vb_close(got: VbStep, ref: VbStep, rtol: float) -> None:
 def test_compiled_vb_step_equals_the_numpy_step(
     m: int, adapt_p: bool, adapt_r: bool, isotropic: bool
 ) -> None:
-    """vb_step_compiled (Cholesky, multiplied-out Joseph form, zeros of H skipped) = vb_step
+    """vb_step compiled (Cholesky, multiplied-out Joseph form, zeros of H skipped) = vb_step
     (LU, Joseph products) to rounding: 5 trials and a stand-in row, N = 10, every output."""
     inp = _vb_inputs(3 + m, 6, m)
     kw = {"tau": 3.0, "rho": 0.98, "iterations": 10, "adapt_p": adapt_p, "adapt_r": adapt_r,
           "isotropic": isotropic}  # fmt: skip
     ref = vb_step(**inp, **kw)  # type: ignore[arg-type]
-    got = vb_step_compiled(**inp, **kw)  # type: ignore[arg-type]
+    got = vb_step(**inp, **kw, compiled=True)  # type: ignore[arg-type]
     _assert_vb_close(got, ref, 1e-12)
     for mat in (got.p, got.p_pred, got.u_scale):  # symmetric to the bit, as the numpy step
         np.testing.assert_array_equal(mat, np.swapaxes(mat, 1, 2))
     # the check can tell: one iteration fewer is another answer (x̂ moves by ~1e-3 relative)
-    fewer = vb_step_compiled(**inp, **{**kw, "iterations": 9})  # type: ignore[arg-type]
+    fewer = vb_step(**inp, **{**kw, "iterations": 9}, compiled=True)  # type: ignore[arg-type]
     with pytest.raises(AssertionError):
         _assert_vb_close(fewer, ref, 1e-6)
 
@@ -277,10 +276,10 @@ def test_compiled_vb_step_keeps_a_non_finite_row_to_itself() -> None:
     it (and as the numpy step to rounding)."""
     inp = _vb_inputs(21, 5, 6)
     kw = {"tau": 3.0, "rho": 0.98, "iterations": 10, "isotropic": True}
-    clean = vb_step_compiled(**inp, **kw)  # type: ignore[arg-type]
+    clean = vb_step(**inp, **kw, compiled=True)  # type: ignore[arg-type]
     bad_inp = {k: v.copy() for k, v in inp.items()}
     bad_inp["p_nom"][1, 0, 0] = np.nan
-    bad = vb_step_compiled(**bad_inp, **kw)  # type: ignore[arg-type]
+    bad = vb_step(**bad_inp, **kw, compiled=True)  # type: ignore[arg-type]
     others = [0, 2, 3, 4]
     for f in VB_FIELDS:
         np.testing.assert_array_equal(getattr(bad, f)[others], getattr(clean, f)[others], f)

@@ -8,6 +8,15 @@ rotation core :mod:`qkf.core.quat`, the compiled model
 :mod:`qkf.transfer_alignment.model_compiled`) is therefore compiled through :func:`kernel_jit`,
 and moving one between modules keeps its options.
 
+A batch runs one compiled per-row routine over its rows. :func:`row_loops` makes, from that one
+routine, the loop that runs the rows in parallel (``nb.prange``), the one that runs them in the
+calling thread (small batches: a parallel region costs more than it saves there) and keeps the
+routine itself as the per-row entry; :func:`parallel_and_serial` compiles a hand-written loop
+both ways. Each entry runs its own compiled copy of the routine, optimised in its own module
+(:func:`internalize_linked_functions`), so two entries can round differently in the last bits
+where LLVM fuses or reorders otherwise; where a caller needs them to agree to the bit, a test
+checks it (the filter kernel's two paths: tests/test_env_single_vs_batched.py).
+
 Importing this module also makes every compiled function run the code that was compiled with
 it, whatever the state of numba's on-disk cache (:func:`bind_callee_copies_locally`;
 docs/performance.md, "A fresh compile and the cached code"). Every module of ``qkf`` and
@@ -16,9 +25,11 @@ docs/performance.md, "A fresh compile and the cached code"). Every module of ``q
 
 from __future__ import annotations
 
+import inspect
 import os
+import types
 from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any, NamedTuple, TypeVar, cast
 
 # OpenMP worker threads (numba's "omp" threading layer, GNU libgomp) spin for a while after
 # each parallel region by default. Between two batched filter periods the main thread does the
@@ -120,7 +131,14 @@ def bind_callee_copies_locally() -> None:
 bind_callee_copies_locally()
 
 
-def kernel_jit(*, inline: bool = False, nrt: bool = False) -> Callable[[_F], _F]:
+def kernel_jit(
+    *,
+    inline: bool = False,
+    nrt: bool = False,
+    parallel: bool = False,
+    fastmath: bool = True,
+    cache: bool = True,
+) -> Callable[[_F], _F]:
     """``nb.njit`` for per-epoch code: cached, :data:`FASTMATH`, and by default without the NRT.
 
     Per-epoch code only reads and writes arrays allocated elsewhere, so it needs no reference
@@ -129,10 +147,111 @@ def kernel_jit(*, inline: bool = False, nrt: bool = False) -> Callable[[_F], _F]
     10-40 % slower than a monolithic one. ``nrt=True`` for code that allocates arrays.
     ``inline``: inline into the caller at the numba-IR level (the loops then see the caller's
     arrays). ``_nrt`` is a private numba option, hence the cast for the type checker.
+    ``parallel``: ``nb.prange`` loops run on numba's threads (prefer :func:`row_loops`).
+    ``fastmath=False``: strict IEEE arithmetic, for code held to a reference that rounds that
+    way (the gyro UKF, to filterpy). ``cache=False`` for code compiled outside ``qkf`` (tests):
+    numba checks a cache entry against its own source file only, and such code would keep stale
+    copies of the ``qkf`` routines it calls (:mod:`qkf.core.numba_cache` covers ``qkf`` only).
     """
-    options: dict[str, Any] = {"cache": True, "fastmath": FASTMATH}
+    options: dict[str, Any] = {"cache": cache}
+    if fastmath:
+        options["fastmath"] = FASTMATH
     if not nrt:
         options["_nrt"] = False
     if inline:
         options["inline"] = "always"
+    if parallel:
+        options["parallel"] = True
     return cast("Callable[[_F], _F]", nb.njit(**options))
+
+
+def parallel_and_serial(loop: _F, *, fastmath: bool = True, cache: bool = True) -> tuple[_F, _F]:
+    """``loop`` compiled twice (with the NRT, see :func:`kernel_jit`): its ``nb.prange`` loops run
+    on numba's threads in the first and in the calling thread in the second.
+
+    One definition serves both, so they cannot drift apart. The serial copy is the same Python
+    function under the name ``<name>_serial``: numba's cache key holds the source and the
+    argument types but not the compile options, so under one name the two would load each
+    other's code from the cache.
+    """
+    serial = types.FunctionType(
+        loop.__code__, loop.__globals__, loop.__name__, loop.__defaults__, loop.__closure__
+    )
+    serial.__qualname__ = f"{loop.__qualname__}_serial"
+    serial.__module__ = loop.__module__
+    serial.__doc__ = loop.__doc__
+    serial.__annotations__ = loop.__annotations__
+    serial.__kwdefaults__ = loop.__kwdefaults__
+    compile_as = {"nrt": True, "fastmath": fastmath, "cache": cache}
+    return (
+        kernel_jit(parallel=True, **compile_as)(loop),
+        cast("_F", kernel_jit(**compile_as)(serial)),
+    )
+
+
+class RowLoops(NamedTuple):
+    """The entry points :func:`row_loops` makes of one per-row routine ``row(i, *args)``."""
+
+    parallel: Callable[..., None]  # (*args): every row, rows on numba's threads
+    serial: Callable[..., None]  # (*args): every row, in order, in the calling thread
+    row: Callable[..., None]  # (i, *args): row i alone, the routine itself
+
+
+def _parameters(dispatcher: Callable[..., Any]) -> list[str]:
+    """The parameter names of the Python function a numba dispatcher compiles."""
+    return list(inspect.signature(dispatcher.py_func).parameters)  # type: ignore[attr-defined]
+
+
+_LOOP_NAMES = frozenset({"_row", "_prange", "_i", "_scratch", "_work"})
+"""The names the generated loop uses itself; a per-row routine must not take them."""
+
+
+def row_loops(
+    row: Callable[..., None],
+    rows: str,
+    *,
+    scratch: Callable[..., Any] | None = None,
+    fastmath: bool = True,
+    cache: bool = True,
+) -> RowLoops:
+    """The loops over a batch of the compiled per-row routine ``row(i, *args)``.
+
+    ``rows`` is the number of rows, an expression of ``row``'s arguments after the index (for
+    example ``"x.shape[0]"``). The loops take those arguments and run
+    ``for i in prange(rows): row(i, *args)``, compiled by :func:`parallel_and_serial` (its
+    flags: ``fastmath``, ``cache``). Named tuples of arrays pass as they do into a hand-written
+    loop; the prange body is the single call on purpose (inside a parfor numba drops writes to
+    arrays reached through named-tuple attributes, numba#5872).
+
+    ``scratch``: a compiled routine that allocates the work arrays of the whole batch, once per
+    call of a loop; its parameters are named after arguments of ``row``, and what it returns (an
+    array or a plain tuple of arrays: a named tuple made outside a parfor cannot enter it,
+    numba#5299) goes to ``row``'s last parameter, which the loops then do not take.
+
+    The loop is generated with ``row``'s own parameter names and placed at ``row``'s own lines
+    of its file: numba caches it next to that file and checks the cache against it, as it
+    would a loop written there, and its messages point at the per-row routine.
+    """
+    py_func = row.py_func  # type: ignore[attr-defined]  # a numba dispatcher
+    params = _parameters(row)[1:]
+    if _LOOP_NAMES & set(params):
+        raise ValueError(f"{py_func.__qualname__}: a parameter is named {sorted(_LOOP_NAMES)}")
+    taken = params if scratch is None else params[:-1]
+    passed = taken if scratch is None else [*taken, "_work"]
+    lines = [f"def {py_func.__name__}_rows({', '.join(taken)}):"]
+    if scratch is not None:
+        lines.append(f"    _work = _scratch({', '.join(_parameters(scratch))})")
+    lines += [
+        f"    for _i in _prange({rows}):",
+        f"        _row(_i, {', '.join(passed)})",
+    ]
+    code = py_func.__code__
+    source = "\n" * (code.co_firstlineno - 1) + "\n".join(lines) + "\n"
+    scope: dict[str, Any] = {"_prange": nb.prange, "_row": row, "_scratch": scratch}
+    exec(compile(source, code.co_filename, "exec"), scope)
+    loop = scope[f"{py_func.__name__}_rows"]
+    loop.__module__ = py_func.__module__
+    loop.__qualname__ = f"{py_func.__qualname__}_rows"
+    loop.__doc__ = f"{py_func.__qualname__} for every row of a batch ({rows} rows)."
+    parallel, serial = parallel_and_serial(loop, fastmath=fastmath, cache=cache)
+    return RowLoops(parallel, serial, row)

@@ -29,13 +29,12 @@ and ``symmetrize_inplace``.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
-from qkf.core.jit import FASTMATH
+from qkf.core.jit import kernel_jit, row_loops
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def cholesky_inplace(s: np.ndarray) -> bool:
     """Lower Cholesky factor of the symmetric matrix ``s``, in place; False if not PD."""
     m = s.shape[0]
@@ -58,7 +57,7 @@ def cholesky_inplace(s: np.ndarray) -> bool:
     return True
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def forward_solve(lower: np.ndarray, b: np.ndarray) -> None:
     """Solve ``L y = b`` in place for a lower-triangular ``L`` (``b`` a vector)."""
     m = lower.shape[0]
@@ -69,7 +68,7 @@ def forward_solve(lower: np.ndarray, b: np.ndarray) -> None:
         b[i] = v / lower[i, i]
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def backward_solve_t(lower: np.ndarray, b: np.ndarray) -> None:
     """Solve ``Lᵀ y = b`` in place for a lower-triangular ``L`` (``b`` a vector)."""
     m = lower.shape[0]
@@ -80,7 +79,7 @@ def backward_solve_t(lower: np.ndarray, b: np.ndarray) -> None:
         b[i] = v / lower[i, i]
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def symmetrize_inplace(p: np.ndarray) -> None:
     """``P ← (P + Pᵀ)/2``."""
     n = p.shape[0]
@@ -91,7 +90,7 @@ def symmetrize_inplace(p: np.ndarray) -> None:
             p[j, i] = v
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def predict_one(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
     """Dense predict of one problem, in place."""
     n = x.shape[0]
@@ -105,7 +104,7 @@ def predict_one(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) ->
     symmetrize_inplace(p)
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def make_workspace(
     n: int, m: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -120,7 +119,23 @@ def make_workspace(
     )
 
 
-@nb.njit(cache=True, fastmath=FASTMATH, inline="always")
+@kernel_jit(nrt=True, inline=True)
+def sparse_rows_times(h: np.ndarray, b: np.ndarray, out: np.ndarray, rows: int, n: int) -> None:
+    """``out[:rows, :n] = H[:rows, :n] B[:n, :n]``, skipping the zeros of ``H``: a structured
+    measurement matrix costs only its non-zeros. Each row is a sum of rows of ``B`` (axpy
+    form: the innermost loop runs along a row and vectorises). Inlined into its caller (numba
+    IR), so that constant sizes there give loops of a known trip count."""
+    for i in range(rows):
+        for j in range(n):
+            out[i, j] = 0.0
+        for c in range(n):
+            hic = h[i, c]
+            if hic != 0.0:
+                for j in range(n):
+                    out[i, j] += hic * b[c, j]
+
+
+@kernel_jit(nrt=True, inline=True)
 def update_sized(
     x: np.ndarray,
     p: np.ndarray,
@@ -150,14 +165,7 @@ def update_sized(
         if not np.isfinite(nu[i]):
             return False, np.nan, np.nan
     ut, kt, g, hph, s, y = ws
-    for j in range(m):
-        for i in range(n):
-            ut[j, i] = 0.0
-        for c in range(n):
-            hc = h[j, c]
-            if hc != 0.0:
-                for i in range(n):
-                    ut[j, i] += hc * p[c, i]  # P is symmetric: row c = column c
+    sparse_rows_times(h, p, ut, m, n)  # Uᵀ = H P (P is symmetric: Pᵀ = P)
     if gain_innermost:  # H P Hᵀ from the non-zeros of H only, a short axpy per non-zero
         for i in range(m):
             for j in range(m):
@@ -248,7 +256,7 @@ def update_sized(
     return True, nis, logdet
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def update_one(
     x: np.ndarray,
     p: np.ndarray,
@@ -267,14 +275,15 @@ def update_one(
     return update_sized(x, p, nu, h, r, s_out, ws, x.shape[0], nu.shape[0], False)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _predict_batch(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
-    for b in nb.prange(x.shape[0]):
-        predict_one(x[b], p[b], phi[b], q[b])
+@kernel_jit(nrt=True)
+def _predict_row(b: int, x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
+    """Problem ``b`` of :func:`predict`."""
+    predict_one(x[b], p[b], phi[b], q[b])
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _update_batch(
+@kernel_jit(nrt=True)
+def _update_row(
+    b: int,
     x: np.ndarray,
     p: np.ndarray,
     z: np.ndarray,
@@ -284,12 +293,16 @@ def _update_batch(
     nis: np.ndarray,
     logdet: np.ndarray,
 ) -> None:
-    for b in nb.prange(x.shape[0]):
-        nu = z[b] - h[b] @ x[b]
-        m = z.shape[1]
-        s_out = np.empty((m, m))
-        ws = make_workspace(x.shape[1], m)
-        ok[b], nis[b], logdet[b] = update_one(x[b], p[b], nu, h[b], r[b], s_out, ws)
+    """Problem ``b`` of :func:`update`: ``ν = z − H x``, then :func:`update_one`."""
+    nu = z[b] - h[b] @ x[b]
+    m = z.shape[1]
+    s_out = np.empty((m, m))
+    ws = make_workspace(x.shape[1], m)
+    ok[b], nis[b], logdet[b] = update_one(x[b], p[b], nu, h[b], r[b], s_out, ws)
+
+
+_predict_batch = row_loops(_predict_row, "x.shape[0]").parallel
+_update_batch = row_loops(_update_row, "x.shape[0]").parallel
 
 
 def _batched(arr: np.ndarray, batch: int, ndim: int) -> np.ndarray:

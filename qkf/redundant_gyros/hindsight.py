@@ -38,7 +38,7 @@ import numpy as np
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.episodes import EpisodeInputs, EpisodeSampler
 from qkf.redundant_gyros.ukf import DIM, UkfSetup
-from qkf.redundant_gyros.ukf_compiled import CompiledSetup, run_span, ukf_step
+from qkf.redundant_gyros.ukf_compiled import CompiledSetup, run_span, step_work, ukf_step
 
 SETTLED_S = 100.0
 """Default start of the judged window, s after the calibration starts: the UKF has converged
@@ -121,7 +121,7 @@ class CompiledUKF:
                 k0,
                 k1,
                 self.ep.settled_from,
-                *self.geometry,
+                self.geometry,
                 self.weights,
             )
         )
@@ -131,12 +131,11 @@ class CompiledUKF:
         i = self.ep.inputs
         x, p = self.prior()
         out = np.full((i.z.size, DIM), np.nan)
-        chol, scaled, sig = np.zeros((DIM, DIM)), np.zeros((DIM, DIM)), np.zeros((9, DIM))
-        hs, pxz = np.zeros(9), np.zeros(DIM)
+        work = step_work()
         for k in range(i.z.size):
             _, s = ukf_step(
                 x, p, float(i.z[k]), i.rate[k], float(i.dt[k]), float(kappa[k]),
-                *self.geometry, self.weights, chol, scaled, sig, hs, pxz,
+                self.geometry, self.weights, work,
             )  # fmt: skip
             if np.isnan(s):
                 break

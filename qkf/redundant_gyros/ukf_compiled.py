@@ -14,6 +14,9 @@ Cholesky, ``S ≤ 0`` or a non-finite value is a failure (the caller stops the f
 stays the reference: the estimates agree to 1e-9 σ₀ over whole episodes with κ changing
 (``tests/test_gyro_ukf_compiled.py``), at about a thousandth of the cost.
 
+Compiled without the kernels' fast-math flags (``fastmath=False`` of
+:func:`qkf.core.jit.kernel_jit`): strict IEEE arithmetic, as numpy (and filterpy) computes.
+
 Its users: :func:`run_span` (the hindsight search, :mod:`qkf.redundant_gyros.hindsight`) and
 :func:`run_periods` (the environments, :mod:`envs.redundant_gyros.episodes`), which steps every
 episode of a batch over its next decision period in parallel over episodes.
@@ -23,11 +26,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
-import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.core.jit import kernel_jit, row_loops
 from qkf.redundant_gyros.ukf import DIM, UkfSetup
+
+Geometry = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]
+"""``(w, u, v, G_H⁻¹, s_H, σ_j, q²)``: the unit's geometry and noise, as the filter reads them."""
+Work = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The scratch of :func:`ukf_step` (:func:`step_work`)."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +45,7 @@ class CompiledSetup:
     Merwe points.
     """
 
-    geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]
+    geometry: Geometry
     weights: np.ndarray
 
     @classmethod
@@ -51,7 +58,7 @@ class CompiledSetup:
         return cls(geometry, weights)
 
 
-@nb.njit(cache=True)
+@kernel_jit(nrt=True, fastmath=False)
 def _cholesky(a: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover - compiled
     """Lower Cholesky factor of the 4 × 4 ``a`` into ``out``; False if not positive definite."""
     n = a.shape[0]
@@ -73,7 +80,7 @@ def _cholesky(a: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover - com
     return True
 
 
-@nb.njit(cache=True)
+@kernel_jit(nrt=True, fastmath=False)
 def _h(
     s: np.ndarray, w: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray
 ) -> float:  # pragma: no cover
@@ -84,8 +91,8 @@ def _h(
     return (1.0 - s[1]) * acc - s[0]
 
 
-@nb.njit(cache=True)
-def _scratch() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@kernel_jit(nrt=True, fastmath=False)
+def step_work() -> Work:
     """Work arrays of :func:`ukf_step`: chol, scaled, sigma points, h(χ), P_xz."""
     n = DIM
     return (
@@ -97,7 +104,7 @@ def _scratch() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarr
     )
 
 
-@nb.njit(cache=True)
+@kernel_jit(nrt=True, fastmath=False)
 def ukf_step(
     x: np.ndarray,
     p: np.ndarray,
@@ -105,23 +112,16 @@ def ukf_step(
     r: np.ndarray,
     dt: float,
     kap: float,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-    q2: np.ndarray,
+    geometry: Geometry,
     weights: np.ndarray,
-    chol: np.ndarray,
-    scaled: np.ndarray,
-    sig: np.ndarray,
-    hs: np.ndarray,
-    pxz: np.ndarray,
+    work: Work,
 ) -> tuple[float, float]:  # pragma: no cover - compiled
     """One predict + update of ``(x, p)`` in place with reading ``z`` and triad rate ``r``
-    (deg/s), step ``dt`` (s) and factor ``kap`` (module docstring). Returns the innovation
-    ``ν`` and its variance ``S``; ``S`` is NaN if the filter failed (``x``, ``p`` undefined)."""
+    (deg/s), step ``dt`` (s) and factor ``kap`` (module docstring), the unit's ``geometry`` and
+    the Merwe ``weights`` (:class:`CompiledSetup`). Returns the innovation ``ν`` and its
+    variance ``S``; ``S`` is NaN if the filter failed (``x``, ``p`` undefined)."""
+    w, u, v, tinv, tnoise, noise, q2 = geometry
+    chol, scaled, sig, hs, pxz = work
     n = 4
     lam_n, wm0, wc0, wi = weights[0], weights[1], weights[2], weights[3]
     for i in range(n):
@@ -180,7 +180,7 @@ def ukf_step(
     return y, s
 
 
-@nb.njit(cache=True)
+@kernel_jit(nrt=True, fastmath=False)
 def run_span(
     x: np.ndarray,
     p: np.ndarray,
@@ -193,25 +193,16 @@ def run_span(
     k0: int,
     k1: int,
     settled_from: int,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-    q2: np.ndarray,
+    geometry: Geometry,
     weights: np.ndarray,
 ) -> float:  # pragma: no cover - compiled
     """Run the UKF (``x`` (4,), ``p`` (4, 4), in place) over epochs ``[k0, k1)`` of one
     episode with ``kappa[k − k0]``; return the sum of the squared normalised errors
     ``((x̂ − x) inv_sd)²`` over the epochs from ``settled_from`` on, NaN if the filter fails."""
-    chol, scaled, sig, hs, pxz = _scratch()
+    work = step_work()
     total = 0.0
     for k in range(k0, k1):
-        _, s = ukf_step(
-            x, p, z[k], rate[k], dt[k], kappa[k - k0],
-            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
-        )  # fmt: skip
+        _, s = ukf_step(x, p, z[k], rate[k], dt[k], kappa[k - k0], geometry, weights, work)
         if np.isnan(s):
             return np.nan
         if k >= settled_from:
@@ -229,7 +220,7 @@ innovations of the period (their lag-1 products: about 0 when the filter's proce
 right whatever the white noise, positive when the coefficients move faster than it assumes)."""
 
 
-@nb.njit(cache=True)
+@kernel_jit(nrt=True, fastmath=False)
 def _period_row(
     b: int,
     x: np.ndarray,
@@ -258,8 +249,18 @@ def _period_row(
     err: np.ndarray,
     cov: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """Episode ``b`` of :func:`run_periods`."""
-    chol, scaled, sig, hs, pxz = _scratch()
+    """Step episode ``b`` of a batch over its epochs ``[k0[b], k1[b])`` with ``kappa[b]``;
+    ``x`` (B, 4), ``p`` (B, 4, 4) and ``failed`` (B,) in place. A failed episode is not stepped.
+
+    Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
+    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 6), the :data:`SUMS` over the
+    epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
+    ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
+    ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
+    epochs (for ``sums[:, 2]``; ``nominal_failed`` if it fails, the agent's filter not). The
+    geometry ``w`` … ``q2`` and the ``weights`` are those of :class:`CompiledSetup`."""
+    geometry = (w, u, v, tinv, tnoise, noise, q2)
+    work = step_work()
     xs = x[b].copy()  # the state at the period's start, for the κ = 1 copy
     ps = p[b].copy()
     err[b] = np.nan
@@ -274,10 +275,7 @@ def _period_row(
     r_prev = 0.0
     for i in range(steps):
         k = k0[b] + i
-        y, s = ukf_step(
-            x[b], p[b], z[b, k], rate[b, k], dt[k], kappa[b],
-            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
-        )  # fmt: skip
+        y, s = ukf_step(x[b], p[b], z[b, k], rate[b, k], dt[k], kappa[b], geometry, weights, work)
         if np.isnan(s):
             failed[b] = True
             return
@@ -302,59 +300,16 @@ def _period_row(
         return
     for i in range(steps):
         k = k0[b] + i
-        y, s = ukf_step(
-            xs, ps, z[b, k], rate[b, k], dt[k], 1.0,
-            w, u, v, tinv, tnoise, noise, q2, weights, chol, scaled, sig, hs, pxz,
-        )  # fmt: skip
+        y, s = ukf_step(xs, ps, z[b, k], rate[b, k], dt[k], 1.0, geometry, weights, work)
         if np.isnan(s):
             nominal_failed[b] = True
             return
         sums[b, 2] += -0.5 * (y * y / s + np.log(s))
 
 
-@nb.njit(cache=True, parallel=True)
-def run_periods(
-    x: np.ndarray,
-    p: np.ndarray,
-    z: np.ndarray,
-    rate: np.ndarray,
-    dt: np.ndarray,
-    truth: np.ndarray,
-    inv_sd: np.ndarray,
-    kappa: np.ndarray,
-    k0: np.ndarray,
-    k1: np.ndarray,
-    nominal: bool,
-    keep_cov: bool,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-    q2: np.ndarray,
-    weights: np.ndarray,
-    failed: np.ndarray,
-    nominal_failed: np.ndarray,
-    sums: np.ndarray,
-    err: np.ndarray,
-    cov: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """Step episode ``b`` of a batch over its epochs ``[k0[b], k1[b])`` with ``kappa[b]``, in
-    parallel over episodes; ``x`` (B, 4), ``p`` (B, 4, 4) and ``failed`` (B,) in place. A
-    failed episode is not stepped.
-
-    Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
-    ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 6), the :data:`SUMS` over the
-    epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
-    ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
-    ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
-    epochs (for ``sums[:, 2]``; ``nominal_failed`` if it fails, the agent's filter not)."""
-    for b in nb.prange(x.shape[0]):
-        _period_row(
-            b, x, p, z, rate, dt, truth, inv_sd, kappa, k0, k1, nominal, keep_cov,
-            w, u, v, tinv, tnoise, noise, q2, weights, failed, nominal_failed, sums, err, cov,
-        )  # fmt: skip
+run_periods = row_loops(_period_row, "x.shape[0]", fastmath=False).parallel
+""":func:`_period_row` for every episode of a batch (its arguments after the episode index),
+episodes in parallel."""
 
 
-__all__ = ["SUMS", "CompiledSetup", "run_periods", "run_span", "ukf_step"]
+__all__ = ["SUMS", "CompiledSetup", "run_periods", "run_span", "step_work", "ukf_step"]

@@ -49,10 +49,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
-from qkf.core.jit import FASTMATH, kernel_jit
+from qkf.core.jit import kernel_jit, row_loops
 from qkf.core.kalman import (
     cholesky_inplace,
     forward_solve,
@@ -220,6 +219,18 @@ def _nis_block(s_full: np.ndarray, nu: np.ndarray, lo: int, s: np.ndarray, y: np
     return y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
 
 
+@kernel_jit(inline=True)
+def _times_top_t(a: np.ndarray, phi_top: np.ndarray, out: np.ndarray) -> None:
+    """``out = A Φ̃_topᵀ`` (3 × 3) for ``A`` (3 × 15) and the attitude rows ``Φ̃_top`` (3 × 15)
+    of Φ̃: the attitude block of ``A Φ̃ᵀ``. Inlined, so the loops keep their constant sizes."""
+    for i in range(3):
+        for j in range(3):
+            v = 0.0
+            for c in range(15):
+                v += a[i, c] * phi_top[j, c]
+            out[i, j] = v
+
+
 @kernel_jit()
 def _correlation_correction(
     p: np.ndarray,
@@ -255,12 +266,7 @@ def _correlation_correction(
                 v += c_tr[i, c] * kt[3 + c, j]
             w_corr[i, j] = v
     # V = W Φ̃ᵀ: columns ≥ 3 of Φ̃ᵀ are the identity
-    for i in range(3):
-        for j in range(3):
-            v = 0.0
-            for c in range(15):
-                v += w_corr[i, c] * phi_top[j, c]
-            v_tt[i, j] = v
+    _times_top_t(w_corr, phi_top, v_tt)
     for i in range(3):
         for j in range(3, 15):
             p[i, j] -= w_corr[i, j]
@@ -665,12 +671,7 @@ def _propagate_covariance(
             for j in range(15):
                 t_mat[i, j] += coef * p[k, j]
     # (Φ̃ P̃ Φ̃ᵀ)_θθ = T Φ̃_topᵀ
-    for i in range(3):
-        for j in range(3):
-            v = 0.0
-            for k in range(15):
-                v += t_mat[i, k] * phi_top[j, k]
-            tmp[i, j] = v
+    _times_top_t(t_mat, phi_top, tmp)
     # (Φ̃ P̃ Φ̃ᵀ)_θj = T_θj for j ≥ 3; the rest of P̃ stays
     for i in range(3):
         for j in range(3, 15):
@@ -712,7 +713,11 @@ def _propagate_covariance(
 @kernel_jit(nrt=True)
 def _run_trial(bi: int, state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
     """All epochs of ``inputs`` for trial ``bi``: allocates the trial's work arrays and runs
-    :func:`_epoch_loop`."""
+    :func:`_epoch_loop`. ``state`` and ``rec`` are written in place.
+
+    A trial whose numbers go non-finite, whose ``I + K(p̂)`` turns singular or whose ``S̃`` /
+    ``P̃`` loses positive definiteness is flagged in ``state.diverged`` and frozen.
+    """
     _epoch_loop(bi, state, inputs, c, rec, _scale_factors(c), _make_scratch(6 if c.use_rate else 3))
 
 
@@ -803,19 +808,8 @@ def _epoch_loop(
             pt[i, j] = p[i, j]
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def run_block(state: FilterState, inputs: Inputs, c: Constants, rec: Records) -> None:
-    """Run the n epochs of ``inputs`` for every trial, trials in parallel; ``state`` and ``rec``
-    are written in place.
-
-    A trial whose numbers go non-finite, whose ``I + K(p̂)`` turns singular or whose ``S̃`` /
-    ``P̃`` loses positive definiteness is flagged in ``state.diverged`` and frozen.
-    """
-    # The prange body is a single call on purpose: inside a parfor, numba drops writes to arrays
-    # reached through named-tuple attributes as dead code (numba#5872), and a named tuple made
-    # outside the loop by a call cannot enter it (numba#5299).
-    for bi in nb.prange(state.q_hat.shape[0]):
-        _run_trial(bi, state, inputs, c, rec)
+run_block = row_loops(_run_trial, "state.q_hat.shape[0]").parallel
+"""Run the n epochs of ``inputs`` for every trial (:func:`_run_trial`), trials in parallel."""
 
 
 SERIAL_BELOW = 4
@@ -824,7 +818,7 @@ environment, a recorded run) a parallel region only costs — its threads are st
 every call, and wait for cores whenever other processes hold them (docs/performance.md)."""
 
 
-@nb.njit(cache=True, fastmath=FASTMATH)
+@kernel_jit(nrt=True)
 def run_block_serial(
     state: StateTuple, inputs: InputsTuple, c: ConstantsTuple, rec: RecordsTuple
 ) -> None:

@@ -27,7 +27,8 @@ module to those private routines and to the filter's private state (``_pt``, ``_
 trials' (B, N, ·) arrays, not copied per model.
 
 Each routine has a numpy reference, which stays the documented and tested definition
-(``tests/test_bank_compiled.py`` checks each pair, and both methods end to end):
+(``tests/test_bank_compiled.py`` checks each pair, the pieces batched by
+``tests/bank_reference.py``, and both methods end to end):
 
 ========================  ===========================================================
 compiled (here)           numpy reference
@@ -57,10 +58,9 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
-from qkf.core.jit import FASTMATH, kernel_jit
+from qkf.core.jit import kernel_jit, row_loops
 from qkf.core.quat import quat_mul_exp, relative_rotvec
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.filter import SensorData, TransferAlignmentKF
@@ -852,22 +852,9 @@ def _bank_trial(
     out.live[t] = live
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def run_bank_trials(
-    state: _ta_kernel.FilterState,
-    inp: _ta_kernel.Inputs,
-    c: _ta_kernel.Constants,
-    rec: _ta_kernel.Records,
-    rec_cov: _ta_kernel.Records,
-    data: BankData,
-    st: BankSettings,
-    out: BankOutputs,
-) -> None:
-    """:func:`_bank_trial` for every trial, in parallel."""
-    # The prange body is a single call on purpose (as in the filter kernel): inside a parfor,
-    # numba drops writes to arrays reached through named-tuple attributes (numba#5872).
-    for t in nb.prange(data.gyro.shape[0]):
-        _bank_trial(t, state, inp, c, rec, rec_cov, data, st, out)
+run_bank_trials = row_loops(_bank_trial, "data.gyro.shape[0]").parallel
+""":func:`_bank_trial` for every trial (its arguments after the trial index), trials in
+parallel."""
 
 
 # ---- Python side --------------------------------------------------------------------------------
@@ -984,183 +971,3 @@ def run_bank(
         out,
     )
     return BankRun(est=out.est, weights=out.weights, alive=out.alive, live=out.live)
-
-
-# ---- batched entry points of the pieces (tests, comparisons with the numpy references) --------
-
-
-@kernel_jit(nrt=True)
-def _unit_noise_row(
-    t: int,
-    dt: float,
-    coef_g: np.ndarray,
-    coef_tt: np.ndarray,
-    rate: np.ndarray,
-    p_hat: np.ndarray,
-    u: np.ndarray,
-) -> None:
-    unit_noise(dt, coef_g, coef_tt, rate[t], p_hat[t], u[t], _make_work(1))
-
-
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _unit_noise_rows(
-    dt: float,
-    coef_g: np.ndarray,
-    coef_tt: np.ndarray,
-    rate: np.ndarray,
-    p_hat: np.ndarray,
-    u: np.ndarray,
-) -> None:
-    for t in nb.prange(rate.shape[0]):
-        _unit_noise_row(t, dt, coef_g, coef_tt, rate, p_hat, u)
-
-
-def unit_calibration_noise_compiled(dt: float, rate: np.ndarray, p_hat: np.ndarray) -> np.ndarray:
-    """:func:`unit_noise` for rows of ``rate`` (B, 3) rad/s and ``p_hat`` (B, 9): (B, 15, 15) s."""
-    rate = np.ascontiguousarray(rate, dtype=float)
-    u = np.empty((rate.shape[0], 15, 15))
-    coef_g, coef_tt = unit_noise_coefficients(float(dt))
-    _unit_noise_rows(float(dt), coef_g, coef_tt, rate, np.ascontiguousarray(p_hat, dtype=float), u)
-    return u
-
-
-@kernel_jit(nrt=True)
-def _mix_row(
-    t: int,
-    state: _ta_kernel.FilterState,
-    mu: np.ndarray,
-    trans: np.ndarray,
-    trans_c: float,
-    trans_r: np.ndarray,
-    kq: np.ndarray,
-    unit_q: np.ndarray,
-    inv_d: np.ndarray,
-    inv_dd: np.ndarray,
-    live: np.ndarray,
-    c_bar: np.ndarray,
-) -> None:
-    n_act = kq.shape[0]
-    r0 = t * n_act
-    wk = _make_work(n_act)
-    mix_trial(
-        state,
-        r0,
-        mu[t],
-        trans,
-        trans_c,
-        trans_r,
-        kq,
-        unit_q[t],
-        inv_d,
-        inv_dd,
-        live[t],
-        c_bar[t],
-        wk,
-    )
-
-
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _mix_rows(
-    state: _ta_kernel.FilterState,
-    mu: np.ndarray,
-    trans: np.ndarray,
-    trans_c: float,
-    trans_r: np.ndarray,
-    kq: np.ndarray,
-    unit_q: np.ndarray,
-    inv_d: np.ndarray,
-    inv_dd: np.ndarray,
-    live: np.ndarray,
-    c_bar: np.ndarray,
-) -> None:
-    for t in nb.prange(mu.shape[0]):
-        _mix_row(t, state, mu, trans, trans_c, trans_r, kq, unit_q, inv_d, inv_dd, live, c_bar)
-
-
-def mix_bank_compiled(
-    kf: TransferAlignmentKF,
-    mu: np.ndarray,
-    trans: np.ndarray,
-    kappas: np.ndarray,
-    unit_q: np.ndarray,
-    live: np.ndarray,
-) -> np.ndarray:
-    """:func:`mix_trial` for every trial of the bank ``kf``: the compiled
-    :func:`imm.mix_bank`, with its arguments; returns ``c̄`` (B, A)."""
-    c_bar = np.empty(mu.shape)
-    trans = np.ascontiguousarray(trans, dtype=float)
-    trans_c, trans_r = split_transitions(trans)
-    _mix_rows(
-        _ta_kernel.FilterState(*kf._kernel_state()),
-        np.ascontiguousarray(mu, dtype=float),
-        trans,
-        trans_c,
-        trans_r,
-        np.asarray(kappas, dtype=float) * float(kf.params.qp0),
-        np.ascontiguousarray(unit_q, dtype=float),
-        1.0 / kf._d,
-        1.0 / np.outer(kf._d, kf._d),
-        np.ascontiguousarray(live, dtype=bool),
-        c_bar,
-    )
-    return c_bar
-
-
-@kernel_jit(nrt=True)
-def _combine_row(t: int, est: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
-    rel = np.empty((w.shape[2], 3))
-    for k in range(w.shape[1]):
-        combine_one(est[t, k], w[t, k], out[t, k], rel)
-
-
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _combine_rows(est: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
-    for t in nb.prange(w.shape[0]):
-        _combine_row(t, est, w, out)
-
-
-def combine_compiled(est: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """:func:`combine_one` at every trial and epoch: ``est`` (B, A, n, 16) finite, ``w``
-    (B, A, n) → (B, n, 16), as :func:`mmae.combine`."""
-    out = np.empty((w.shape[0], w.shape[2], 16))
-    _combine_rows(
-        np.ascontiguousarray(np.moveaxis(est, 1, 2), dtype=float),
-        np.ascontiguousarray(np.moveaxis(w, 1, 2), dtype=float),
-        out,
-    )
-    return out
-
-
-@kernel_jit(nrt=True)
-def _mixture_row(
-    t: int, est: np.ndarray, cov: np.ndarray, w: np.ndarray, est_mix: np.ndarray, out: np.ndarray
-) -> None:
-    n_act = w.shape[1]
-    scratch = np.empty((n_act, 15))
-    used = np.empty(n_act, dtype=np.bool_)
-    mixture_covariance_one(est[t], cov[t], w[t], est_mix[t], out[t], scratch, used)
-
-
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def _mixture_rows(
-    est: np.ndarray, cov: np.ndarray, w: np.ndarray, est_mix: np.ndarray, out: np.ndarray
-) -> None:
-    for t in nb.prange(w.shape[0]):
-        _mixture_row(t, est, cov, w, est_mix, out)
-
-
-def mixture_covariance_compiled(
-    est: np.ndarray, cov: np.ndarray, weights: np.ndarray, est_mix: np.ndarray
-) -> np.ndarray:
-    """:func:`mixture_covariance_one` for every trial, with the arguments of
-    :func:`covariance.mixture_covariance` (``est`` (B, A, 16), ``cov`` (B, A, 15, 15),
-    ``weights`` (B, A), ``est_mix`` (B, 16)) → (B, 15, 15)."""
-    out = np.empty((weights.shape[0], 15, 15))
-    _mixture_rows(
-        np.ascontiguousarray(est, dtype=float),
-        np.ascontiguousarray(cov, dtype=float),
-        np.ascontiguousarray(weights, dtype=float),
-        np.ascontiguousarray(est_mix, dtype=float),
-        out,
-    )
-    return out

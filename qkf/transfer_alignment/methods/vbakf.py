@@ -47,10 +47,10 @@ Steps 1–2 and the hand-over run compiled, one call per measurement epoch for a
 (:func:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_epoch`, the same equations as
 :func:`vb_step`, Joseph form multiplied out, trials in parallel). :func:`vb_step` and
 :func:`scaled_measurement` are the numpy reference: the tests check the compiled epoch against
-them (to 1e-12), and :func:`vb_step_compiled` is the compiled step with :func:`vb_step`'s
-interface. The compiled rate matrix ``A`` is the filter's own (adjugate, not ``np.linalg.inv``);
-a measurement model that cannot be formed (``I + K(p̂)`` singular) or whose ``S`` has a
-non-positive Cholesky pivot ends the trial like a non-finite one.
+them (to 1e-12), and ``vb_step(..., compiled=True)`` is the compiled step behind
+:func:`vb_step`'s interface. The compiled rate matrix ``A`` is the filter's own (adjugate, not
+``np.linalg.inv``); a measurement model that cannot be formed (``I + K(p̂)`` singular) or whose
+``S`` has a non-positive Cholesky pivot ends the trial like a non-finite one.
 
 Departures, all forced by the filter's measurement model: only the attitude block of ``R`` is
 adapted (``m = 3`` in the IW of R; the rate-row noise ``R_r`` stays as assumed, its cross terms
@@ -155,6 +155,7 @@ def vb_step(
     adapt_p: bool = True,
     adapt_r: bool = True,
     isotropic: bool = False,
+    compiled: bool = False,
 ) -> VbStep:
     """One VBAKF measurement update (module docstring), batched over axis 0.
 
@@ -164,7 +165,17 @@ def vb_step(
     is used as given (and its cross terms with the adapted block). ``u_prev`` (B,) and
     ``u_scale_prev`` are the R posterior of the previous measurement (:func:`r_prior` at the
     start). ``isotropic``: update with ``(tr R̂_a / a) I`` instead of ``R̂_a``.
+
+    ``compiled``: the compiled step
+    (:data:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_rows`) instead of numpy, for the
+    15 error states only: the same results to rounding, rows in parallel and independent of each
+    other, and a row whose ``S`` has a non-positive Cholesky pivot (or NaN) gets NaN everywhere.
     """
+    if iterations < 1:
+        raise ValueError("iterations must be at least 1")
+    if compiled:
+        inputs = (x_pred, p_nom, z, h, r_nominal, u_prev, u_scale_prev)
+        return _vb_step_compiled(inputs, (tau, rho, iterations, adapt_p, adapt_r, isotropic))
     x_pred = np.asarray(x_pred, dtype=float)
     p_nom = np.asarray(p_nom, dtype=float)
     z = np.asarray(z, dtype=float)
@@ -172,8 +183,6 @@ def vb_step(
     r_nominal = np.asarray(r_nominal, dtype=float)
     n = p_nom.shape[-1]
     a = np.shape(u_scale_prev)[-1]
-    if iterations < 1:
-        raise ValueError("iterations must be at least 1")
     ht = np.swapaxes(h, -1, -2)
     eye_n = np.eye(n)
     u_pred = (
@@ -212,30 +221,16 @@ def vb_step(
     return VbStep(x=x, p=p, u=u, u_scale=u_scale, p_pred=p_hat, r=r)
 
 
-def vb_step_compiled(
-    x_pred: np.ndarray,
-    p_nom: np.ndarray,
-    z: np.ndarray,
-    h: np.ndarray,
-    r_nominal: np.ndarray,
-    u_prev: np.ndarray,
-    u_scale_prev: np.ndarray,
-    *,
-    tau: float,
-    rho: float,
-    iterations: int,
-    adapt_p: bool = True,
-    adapt_r: bool = True,
-    isotropic: bool = False,
+def _vb_step_compiled(
+    inputs: tuple[np.ndarray, ...], settings: tuple[float, float, int, bool, bool, bool]
 ) -> VbStep:
-    """:func:`vb_step` compiled (:func:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_rows`):
-    the same arguments and results, to rounding, for the 15 error states (n = 15); rows in
-    parallel and independent of each other. A row whose ``S`` has a non-positive Cholesky pivot
-    (or NaN) gets NaN everywhere."""
-    if iterations < 1:
-        raise ValueError("iterations must be at least 1")
-    if np.shape(h)[-1] != model.N_STATES:
-        raise ValueError(f"the compiled VB step is for {model.N_STATES} states, H is {np.shape(h)}")
+    """:func:`vb_step` with ``compiled``: ``inputs`` its arrays in its order (``x_pred`` …
+    ``u_scale_prev``), ``settings`` = (τ, ρ, N, adapt_p, adapt_r, isotropic)."""
+    x_pred, p_nom, z, h, r_nominal, u_prev, u_scale_prev = inputs
+    tau, rho, iterations, adapt_p, adapt_r, isotropic = settings
+    n = model.N_STATES
+    if np.shape(h)[-1] != n or np.shape(p_nom)[-2:] != (n, n):
+        raise ValueError(f"the compiled VB step is for {n} states, H is {np.shape(h)}")
     x_pred = np.asarray(x_pred, dtype=float)
     p_nom = np.ascontiguousarray(p_nom, dtype=float)
     h = np.ascontiguousarray(h, dtype=float)
@@ -246,11 +241,12 @@ def vb_step_compiled(
     dx, u = np.empty((b, n)), np.empty(b)
     p, p_hat = np.empty((b, n, n)), np.empty((b, n, n))
     r, u_scale = np.empty((b, m, m)), np.empty((b, a, a))
+    ws = np.empty((b, 7, max(m, a + 1), max(m, n)))  # the scratch of vb_iterate, per row
     vb_rows(
         p_nom, nu, h, r_nominal,
         np.ascontiguousarray(u_prev, dtype=float), np.ascontiguousarray(u_scale_prev, dtype=float),
         float(tau), float(rho), int(iterations), bool(adapt_p), bool(adapt_r), bool(isotropic),
-        dx, p, p_hat, r, u, u_scale,
+        dx, p, p_hat, r, u, u_scale, ws,
     )  # fmt: skip
     return VbStep(x=x_pred + dx, p=p, u=u, u_scale=u_scale, p_pred=p_hat, r=r)
 

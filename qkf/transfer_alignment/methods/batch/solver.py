@@ -11,10 +11,9 @@ its standard deviation; then the smoothing pass (:mod:`.smoother`) at the last p
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
-from qkf.core.jit import FASTMATH, kernel_jit
+from qkf.core.jit import kernel_jit, row_loops
 from qkf.transfer_alignment.methods.batch.dense import inverse_spd
 from qkf.transfer_alignment.methods.batch.forward import forward_pass
 from qkf.transfer_alignment.methods.batch.sensitivity import N_Y
@@ -141,10 +140,6 @@ def solve_trial(b: int, inputs: Inputs, c: Constants, out: Outputs) -> None:
     smooth(store, data, nuis.hn, y, cov_y_out, d, c.sigma_a, er, est, cov_out)
 
 
-@nb.njit(parallel=True, cache=True, fastmath=FASTMATH)
-def solve_trials(inputs: Inputs, c: Constants, out: Outputs) -> None:
-    """Every trial of ``inputs``, in parallel; ``out`` is written in place."""
-    # The prange body is a single call on purpose (as in the filter kernel): inside a parfor,
-    # numba drops writes to arrays reached through named-tuple attributes (numba#5872).
-    for b in nb.prange(inputs.gyro.shape[0]):
-        solve_trial(b, inputs, c, out)
+solve_trials = row_loops(solve_trial, "inputs.gyro.shape[0]").parallel
+""":func:`solve_trial` for every trial of ``inputs`` (its arguments after the trial index),
+trials in parallel; ``out`` is written in place."""
