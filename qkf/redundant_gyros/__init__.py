@@ -9,17 +9,22 @@ lives here, above both, so that neither module imports the other back.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from qkf.core import presets
-from qkf.core.config import ConfigError
-from qkf.redundant_gyros.config import PRESETS, GyrosConfig
-from qkf.redundant_gyros.geometry import GeometryError, build_unit
+if TYPE_CHECKING:
+    from qkf.redundant_gyros.config import GyrosConfig
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> GyrosConfig:
     """Read and validate a gyros config — a path or a preset name (``five_gyros``) — then apply
     ``--set`` overrides. Raises :class:`ConfigError` naming the file and the field; geometry
     problems (a model or the unit without three independent axes) are checked as well."""
+    # imported here: `qkf` mounts this package's cli at start-up, which must stay cheap
+    from qkf.core import presets
+    from qkf.core.config import ConfigError
+    from qkf.redundant_gyros.config import PRESETS, GyrosConfig
+    from qkf.redundant_gyros.geometry import GeometryError, build_unit
+
     cfg = presets.load_preset(GyrosConfig, path, PRESETS, overrides)
     source = (
         "<defaults>"
