@@ -2,10 +2,13 @@
 
 Each entry says which action types the algorithm handles, how to get its class, the policy it
 is built with and whether that policy is recurrent (``recurrent_ppo``: sb3-contrib's
-``RecurrentPPO`` with an LSTM, whose ``predict`` carries a hidden state). The SB3 classes are
-imported only when asked for, so reading a training config or running a tabular
-policy does not load torch. Installed packages can add algorithms through the entry-point group
-``qkf.agents`` (an :class:`Algorithm` object).
+``RecurrentPPO`` with an LSTM, whose ``predict`` carries a hidden state). Every class keeps
+Stable-Baselines3's model contract (the constructor's ``env``, ``seed``, ``tensorboard_log``,
+``device``; ``learn``, ``save``, ``load``, ``predict``), the tabular agent included, so one
+runner trains them all (``agents/training/runner.py``). The classes are imported only when
+asked for, so reading a training config or running a tabular policy does not load torch.
+Installed packages can add algorithms through the entry-point group ``qkf.agents`` (an
+:class:`Algorithm` object).
 """
 
 from __future__ import annotations
@@ -20,22 +23,24 @@ from qkf.core.registry import Registry
 
 @dataclass(frozen=True)
 class Algorithm:
-    """An agent algorithm: ``load()`` returns its class (None for the tabular agent), and what
-    ``qkf train`` does differently for it: the runner that trains it, the format of its model
-    and what its training counts. Every such difference lives here, not in the training code.
+    """An agent algorithm: ``load()`` returns its class, and what ``qkf train`` does
+    differently for it: its constructor's arguments, the format of its model and what its
+    training counts. Every such difference lives here, not in the training code.
     """
 
     action_types: tuple[str, ...]
-    load: Callable[[], Any] | None
+    load: Callable[[], Any]
     description: str
-    policy: str = "MlpPolicy"  # the SB3 policy class name qkf train builds it with
+    policy: str | None = "MlpPolicy"  # the SB3 policy class it is built with (None: no policy)
     recurrent: bool = False  # the policy carries a hidden state between steps (predict(state=))
-    # module:function(plan, progress) -> model path: the runner of agents.training that trains it
-    runner: str = "agents.training.sb3_runner:run_sb3"
+    # a Stable-Baselines3 algorithm: rollouts round total_steps, imitation can pre-train it,
+    # its hyperparams are checked against its __init__
+    sb3: bool = True
+    settings: str = "hyperparams"  # the training config field of its constructor's keywords
     model_suffix: str = ".zip"  # SB3's save format; the tabular agent's is .npz
-    unit: str = "steps"  # what training counts: environment steps, or episodes
+    unit: str = "steps"  # what training (learn's total) counts: environment steps, or episodes
     budget: str = "total_steps"  # the training config field that says how long to train
-    counter: str = "num_timesteps"  # the training.json field of the progress made
+    counter: str = "num_timesteps"  # the model's attribute, and training.json's field, of it
 
     @property
     def model_file(self) -> str:
@@ -63,15 +68,23 @@ def _sb3(name: str) -> Callable[[], Any]:
     return load
 
 
+def _tabular() -> Any:
+    from agents.tabular import TabularQAgent
+
+    return TabularQAgent
+
+
 ALGORITHMS: Registry[Algorithm] = Registry("agent", group="qkf.agents")
 """Agents for ``agent:`` of a training config."""
 ALGORITHMS.register(
     "tabular",
     Algorithm(
         ("discrete",),
-        None,
+        _tabular,
         "tabular Q-learning (agents.tabular)",
-        runner="agents.training.tabular_runner:run_tabular",
+        policy=None,
+        sb3=False,
+        settings="tabular",
         model_suffix=".npz",
         unit="episodes",
         budget="episodes",
@@ -106,8 +119,5 @@ ALGORITHMS.register(
 
 
 def algorithm_class(name: str) -> Any:
-    """The SB3 class of an agent; ``ValueError`` for one without (tabular)."""
-    algo = ALGORITHMS[name]
-    if algo.load is None:
-        raise ValueError(f"agent {name!r} is not a Stable-Baselines3 algorithm")
-    return algo.load()
+    """The model class of an agent (an SB3 algorithm, or the tabular agent)."""
+    return ALGORITHMS[name].load()

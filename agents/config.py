@@ -16,8 +16,8 @@
     eval: {episodes: 8, seed: 100000, every_steps: 20000}
     hyperparams: {}            # keyword arguments of the SB3 algorithm
     tabular: {alpha: 0.1, ...} # TabularQAgent fields
-    reward_scale: 1.0          # SB3: the learner sees reward × this (evaluations do not)
-    reward_clip: null          # SB3: … clipped to ±this after scaling (null: not clipped)
+    reward_scale: 1.0          # the learner sees reward × this (evaluations do not)
+    reward_clip: null          # … clipped to ±this after scaling (null: not clipped)
     frame_stack: 1             # SB3: the policy sees its last k observations (VecFrameStack)
     env_kwargs: {}             # keywords of the environment (ENVIRONMENTS[env].options)
     imitation:                 # SB3 actor-critic agents: DAgger from the env's expert first
@@ -78,6 +78,9 @@ RESERVED_HYPERPARAMS = {
 RESERVED_TABULAR = {
     "n_actions": "set by qkf train from the environment's actions",
     "seed": "set by qkf train from the config's seed",
+    "env": "set by qkf train (the environment of the config)",
+    "device": "set by qkf train (cpu)",
+    "tensorboard_log": "set by qkf train (OUT/tb)",
 }
 
 
@@ -123,7 +126,7 @@ class TrainConfig(StrictModel):
     hyperparams: dict[str, Any] = Field(default_factory=dict)
     tabular: dict[str, Any] = Field(default_factory=dict)
     torch_threads: Annotated[int, Field(ge=1)] = 1  # 2-core machines: the env wants the other
-    reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # SB3 agents learn from reward × this
+    reward_scale: Annotated[float, Field(gt=0.0)] = 1.0  # every agent learns from reward × this
     # SB3: and then clipped to ±this (heavy-tailed rewards); evaluations see the reward as is
     reward_clip: Annotated[float, Field(gt=0.0)] | None = None
     frame_stack: Annotated[int, Field(ge=1)] = 1  # SB3: the policy sees the last k observations
@@ -192,7 +195,7 @@ def validate_train_config(cfg: TrainConfig, source: str, *, check_scenario: bool
         problems += env.check_scenario(cfg.scenario, cfg.overrides)
     if cfg.imitation is not None:
         problems += _imitation_problems(cfg)
-    if algo.load is None:  # the tabular agent
+    if not algo.sb3:  # the tabular agent
         if cfg.hyperparams:
             problems.append(
                 "hyperparams: the tabular agent takes no SB3 hyperparameters (use tabular:)"
@@ -214,7 +217,7 @@ def _imitation_problems(cfg: TrainConfig) -> list[str]:
     """Imitation needs an SB3 actor-critic without memory and an environment with an expert."""
     algo = ALGORITHMS[cfg.agent]
     problems = []
-    if algo.load is None:
+    if not algo.sb3:
         problems.append("imitation: the tabular agent cannot imitate (an SB3 agent: ppo, a2c)")
     elif algo.recurrent:
         problems.append(

@@ -59,17 +59,12 @@ class Policy:
         self.frame_stack = self.cfg.frame_stack
         if path.suffix == ".zip":
             _check_saved_model(path, self.cfg, self.obs_size * self.frame_stack)
-        self._model: Any = None  # SB3's predict() interface, which the tabular agent shares
+        self._model: Any = None  # SB3's predict() interface, which every agent class keeps
         self._stacked: np.ndarray | None = None  # (N, size · k) the stacked observations
         self._state: Any = None  # the LSTM state of a recurrent policy
         self._starts = np.ones(0, dtype=bool)
         try:
-            if path.suffix == ".npz":
-                from agents.tabular import TabularQAgent
-
-                self._model = TabularQAgent.load(path)
-            else:
-                self._model = algorithm_class(self.cfg.agent).load(path, device="cpu")
+            self._model = algorithm_class(self.cfg.agent).load(path, device="cpu")
         except Exception as exc:  # a corrupt or foreign file: SB3/numpy raise many kinds
             what = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
             raise ConfigError(

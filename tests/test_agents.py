@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from agents.config import load_train_config
 from agents.policy import Policy
-from agents.tabular import TabularQAgent, train_tabular
+from agents.tabular import TabularQAgent
 from agents.training import train
 from envs import TransferAlignmentEnv
 from envs.transfer_alignment.sb3 import BatchedTransferAlignmentSB3Env
@@ -44,11 +44,12 @@ def test_vec_env_matches_single_env_and_autoresets() -> None:
 
 def test_tabular_agent_learns_deterministically_and_round_trips(tmp_path: Path) -> None:
     def run() -> TabularQAgent:
-        agent = TabularQAgent(n_actions=11, seed=3)
         env = BatchedTransferAlignmentSB3Env(4, overrides=SHORT)
         env.seed(0)
-        returns = train_tabular(agent, env, episodes=8)
-        assert len(returns) == 8 and np.all(np.isfinite(returns))
+        agent = TabularQAgent(env=env, seed=3)  # n_actions from the env, as SB3's constructors
+        assert agent.learn(8) is agent and agent.n_actions == 11
+        assert agent.episodes == 8 and agent.num_timesteps == 8 * 20  # 4 envs, 2 episodes each
+        assert np.all(np.isfinite(agent.table))
         return agent
 
     a, b = run(), run()

@@ -347,10 +347,11 @@ def test_imitation_steps_are_environment_steps() -> None:
 
 
 @pytest.mark.parametrize("then_rl", [True, False])
-def test_run_sb3_imitates_before_learning(
+def test_runner_imitates_before_learning(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, then_rl: bool
 ) -> None:
-    from agents.training import plan_training, sb3_runner
+    from agents.common import vec_env
+    from agents.training import plan_training, runner
     from agents.training.records import HeldOutEpisodes
 
     def toy(cfg: Any, n_envs: int, seed: int) -> VecEnv:
@@ -358,10 +359,8 @@ def test_run_sb3_imitates_before_learning(
         env.seed(seed)
         return env
 
-    monkeypatch.setattr(sb3_runner, "make_vec_env", toy)
-    monkeypatch.setattr(
-        sb3_runner, "evaluation_env", lambda cfg: HeldOutEpisodes(toy(cfg, 1, 7), 7)
-    )
+    monkeypatch.setattr(vec_env, "make_vec_env", toy)
+    monkeypatch.setattr(runner, "evaluation_env", lambda cfg: HeldOutEpisodes(toy(cfg, 1, 7), 7))
     cfg = TrainConfig(
         agent="ppo",
         n_envs=2,
@@ -373,7 +372,7 @@ def test_run_sb3_imitates_before_learning(
         ),
     )
     plan = plan_training(cfg, tmp_path / "run")
-    path = sb3_runner.run_sb3(plan, progress=False)
+    path = runner.run(plan, progress=False)
     assert path == tmp_path / "run" / "model.zip" and path.is_file()
     record = json.loads((tmp_path / "run" / "imitation.json").read_text())
     assert record["vector_steps_per_round"] == 11  # 21 environment steps over 2 envs

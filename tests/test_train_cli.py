@@ -285,7 +285,7 @@ def test_tabular_writes_tb_checkpoints_evaluations_and_best(tmp_path: Path) -> N
     assert TabularQAgent.load(out / "best" / "best_model.npz").steps == best["timestep"]
     tags = {
         v.tag
-        for f in (out / "tb" / "tabular").iterdir()
+        for f in (out / "tb" / "tabular_1").iterdir()  # SB3's naming: <tb_log_name>_<run>
         for ev in EventFileLoader(str(f)).Load()
         for v in ev.summary.value
     }

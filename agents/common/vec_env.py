@@ -76,9 +76,14 @@ def make_vec_env(cfg: TrainConfig, n_envs: int, seed: int) -> VecEnv:
     return env
 
 
-def monitored(env: VecEnv) -> VecMonitor:
-    """``env`` with SB3's episode statistics (returns, lengths) for TensorBoard."""
-    return VecMonitor(env)
+def learner_env(cfg: TrainConfig, seed: int) -> VecEnv:
+    """The environment the learner trains on: ``n_envs`` episodes seeded ``seed + i``, under
+    SB3's episode statistics (returns, lengths, for TensorBoard) and, where the config asks,
+    the learner's reward scale and clip (:class:`ScaledReward`)."""
+    env: VecEnv = VecMonitor(make_vec_env(cfg, cfg.n_envs, seed))
+    if cfg.reward_scale != 1.0 or cfg.reward_clip is not None:
+        env = ScaledReward(env, cfg.reward_scale, cfg.reward_clip)
+    return env
 
 
 class ScaledReward(VecEnvWrapper):

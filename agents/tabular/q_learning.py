@@ -10,6 +10,17 @@ the state is the tuple of bin indices, flattened. Learning is one-step Q-learnin
 random comes from the agent's own generator (``seed``), so training is reproducible. The agent
 counts what it has learned from: ``episodes`` ended, ``steps`` (transitions, i.e. environment
 steps) and ``visits`` per state; all three are saved with it.
+
+It keeps Stable-Baselines3's model contract, so one training runner serves it and the SB3
+algorithms alike (``agents/training/runner.py``; docs/environment.md, "Training and
+evaluation"): the constructor takes the ``env`` (an SB3 ``VecEnv``), ``seed``,
+``tensorboard_log`` and ``device``; ``learn(total, callback=, progress_bar=,
+reset_num_timesteps=)`` calls SB3 callbacks at SB3's points; ``save``/``load``/``predict``;
+``num_timesteps``, ``get_env``, ``set_env``, ``set_random_seed``, ``logger``. Two things differ,
+and the algorithm registry says so (``agents.algorithms.ALGORITHMS["tabular"]``): ``learn``
+counts *episodes*, not steps, and a "rollout" is the steps up to one that ends an episode, so
+callbacks that act between rollouts (the run's checkpoints and evaluations) never cut an episode
+short. Without a callback or a TensorBoard folder the agent imports neither SB3 nor torch.
 """
 
 from __future__ import annotations
@@ -17,11 +28,10 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from numbers import Real
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -41,7 +51,15 @@ DEFAULT_BINS: dict[int, list[float]] = {
 
 @dataclass
 class TabularQAgent:
-    n_actions: int
+    """Q-learning over binned observations; SB3's model contract (see the module docstring).
+
+    ``n_actions``: the number of discrete actions (None: from ``env``'s action space); ``bins``:
+    observation index → bin edges; ``alpha``, ``gamma``: learning rate and discount;
+    ``epsilon_*``: exploration, ``ε = end + (start − end) exp(−episodes / decay_episodes)``;
+    ``seed``: the agent's own generator; ``env``, ``tensorboard_log``, ``device``: as SB3's.
+    """
+
+    n_actions: int | None = None
     bins: dict[int, list[float]] = field(default_factory=lambda: dict(DEFAULT_BINS))
     alpha: float = 0.1
     gamma: float = 0.9
@@ -49,12 +67,21 @@ class TabularQAgent:
     epsilon_end: float = 0.02
     epsilon_decay_episodes: float = 30.0
     seed: int = 0
+    env: Any = field(default=None, repr=False)  # the SB3 VecEnv it learns on
+    tensorboard_log: str | None = None  # folder of its TensorBoard runs (SB3's argument)
+    device: str = "cpu"  # SB3's argument: the table is a numpy array on the CPU
     table: np.ndarray = field(init=False)
     episodes: int = field(init=False, default=0)
     steps: int = field(init=False, default=0)
     visits: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
+        if self.env is not None:
+            self.n_actions = self._env_actions(self.env, self.n_actions)
+        if self.n_actions is None:
+            raise ValueError("n_actions: needed when no env is given")
+        if self.device not in ("cpu", "auto"):
+            raise ValueError(f"device: the tabular agent runs on the CPU, got {self.device!r}")
         if self.n_actions < 2:
             raise ValueError("n_actions: must be at least 2")
         self._check_numbers()
@@ -64,6 +91,18 @@ class TabularQAgent:
         self.table = np.zeros((int(np.prod(self._sizes)), self.n_actions))
         self.visits = np.zeros(self.table.shape[0], dtype=np.int64)
         self.rng = np.random.default_rng(self.seed)
+        self.logger: Any = None  # SB3's Logger while it learns with a callback or TensorBoard
+
+    @staticmethod
+    def _env_actions(env: Any, n_actions: int | None) -> int:
+        """The number of actions of ``env``; ``ValueError`` if it is not discrete or disagrees
+        with ``n_actions``."""
+        n = getattr(env.action_space, "n", None)
+        if n is None:
+            raise ValueError(f"env: the tabular agent needs discrete actions: {env.action_space}")
+        if n_actions is not None and int(n) != n_actions:
+            raise ValueError(f"n_actions: {n_actions}, but the env has {int(n)} actions")
+        return int(n)
 
     def _check_numbers(self) -> None:
         """``ValueError`` naming the field (``alpha: …``) for a setting out of its range."""
@@ -109,7 +148,7 @@ class TabularQAgent:
         if deterministic:
             return greedy
         explore = self.rng.random(np.shape(greedy)) < self.epsilon()
-        random = self.rng.integers(self.n_actions, size=np.shape(greedy))
+        random = self.rng.integers(self.table.shape[1], size=np.shape(greedy))
         return np.where(explore, random, greedy)
 
     def predict(
@@ -144,8 +183,126 @@ class TabularQAgent:
             target = r[i] + self.gamma * bootstrap[i]
             self.table[s[i], a[i]] += self.alpha * (target - self.table[s[i], a[i]])
 
-    def save(self, path: str | Path) -> None:
-        """Write the agent (``.npz``) atomically."""
+    # ------------------------------------------------------------------------------------------
+    # Stable-Baselines3's model contract
+
+    @property
+    def num_timesteps(self) -> int:
+        """Environment steps learned from (SB3's counter; what evaluations are indexed by)."""
+        return self.steps
+
+    def get_env(self) -> Any:
+        """The ``VecEnv`` it learns on (None: not set)."""
+        return self.env
+
+    def set_env(self, env: Any) -> None:
+        """Learn on ``env`` from now on; ``ValueError`` if its actions do not fit the table."""
+        self._env_actions(env, self.n_actions)
+        self.env = env
+
+    def get_vec_normalize_env(self) -> Any:
+        """None: no observation normalisation (SB3's evaluation callback asks)."""
+        return None
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        """Seed the environment (SB3's ``set_random_seed``). The agent's own generator goes on
+        from its state, which :meth:`save` keeps: a resumed run explores reproducibly."""
+        if seed is not None and self.env is not None:
+            self.env.seed(seed)
+
+    def learn(
+        self,
+        total_episodes: int,
+        callback: Any = None,
+        tb_log_name: str = "tabular",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> TabularQAgent:
+        """Learn on ``env`` until ``total_episodes`` more episodes have ended (its environments
+        run in step, so the last step may end a few more; ``episodes`` says how many).
+
+        SB3's ``learn``, counting episodes: ``callback`` (an SB3 callback or a list of them)
+        is called at SB3's points, a rollout being the steps up to one at which an episode
+        ends; ``reset_num_timesteps`` says whether the TensorBoard log starts a new run or
+        continues the last (the counters, which set ε, always go on); ``progress_bar`` counts
+        episodes. Each ended episode's return, and then ε, the states visited and the episodes,
+        go to the TensorBoard log (``tensorboard_log``) at the step count.
+        """
+        if self.env is None:
+            raise ValueError("env: the agent has no environment to learn on (set_env)")
+        from rich.progress import Progress
+
+        env = self.env
+        hooks = self._callback(callback, tb_log_name, reset_num_timesteps)
+        target = self.episodes + total_episodes
+        hooks.on_training_start(locals(), globals())
+        obs = env.reset()
+        running = np.zeros(env.num_envs)
+        hooks.on_rollout_start()
+        with Progress(disable=not progress_bar) as bar:
+            task = bar.add_task("tabular episodes", total=target, completed=self.episodes)
+            while self.episodes < target:
+                action = self.act(obs, deterministic=False)
+                next_obs, reward, done, infos = env.step(action)
+                final = next_obs.copy()  # the transition's next state: the terminal one
+                terminated = np.zeros(env.num_envs, dtype=bool)
+                for i in np.flatnonzero(done):
+                    final[i] = infos[i]["terminal_observation"]
+                    terminated[i] = not infos[i].get("TimeLimit.truncated", False)
+                self.update(obs, action, reward, final, terminated)
+                running += reward
+                finished = [float(r) for r in running[done]]
+                running[done] = 0.0
+                self.episodes += len(finished)
+                self._log(finished)
+                bar.update(task, completed=self.episodes)
+                hooks.update_locals(locals())
+                if not hooks.on_step():
+                    break
+                obs = next_obs
+                if finished:  # an episode ended: so does the rollout
+                    hooks.on_rollout_end()
+                    if self.episodes < target:
+                        hooks.on_rollout_start()
+        hooks.on_training_end()
+        return self
+
+    def _callback(self, callback: Any, tb_log_name: str, reset_num_timesteps: bool) -> Any:
+        """The callback ready to call (SB3's ``_init_callback``), and SB3's logger if there is
+        a callback or a TensorBoard folder; neither: no SB3 import, and hooks that do nothing."""
+        if callback is None and self.tensorboard_log is None:
+            self.logger = None
+            return _NoCallback()
+        from stable_baselines3.common.callbacks import CallbackList
+        from stable_baselines3.common.utils import configure_logger
+
+        self.logger = configure_logger(0, self.tensorboard_log, tb_log_name, reset_num_timesteps)
+        if callback is None:
+            return _NoCallback()
+        if isinstance(callback, list):
+            callback = CallbackList(callback)
+        callback.init_callback(self)
+        return callback
+
+    def _log(self, finished: list[float]) -> None:
+        """TensorBoard: the returns of the episodes that just ended, then ε, the states visited
+        and the episodes, at the current step count."""
+        if self.logger is None or not finished:
+            return
+        for ret in finished:
+            self.logger.record("rollout/ep_return", ret)
+            self.logger.dump(self.steps)
+        self.logger.record("train/epsilon", self.epsilon())
+        self.logger.record("train/states_visited", self.states_visited)
+        self.logger.record("train/episodes", self.episodes)
+        self.logger.dump(self.steps)
+
+    # ------------------------------------------------------------------------------------------
+    # files
+
+    def save(self, path: str | Path | IO[bytes]) -> None:
+        """Write the agent (``.npz``; a path without a suffix gets it, as SB3's ``.zip``):
+        atomically to a path, or into a binary file object."""
         buf = io.BytesIO()
         np.savez(
             buf,
@@ -153,7 +310,7 @@ class TabularQAgent:
             episodes=self.episodes,
             steps=self.steps,
             visits=self.visits,
-            n_actions=self.n_actions,
+            n_actions=self.table.shape[1],
             bins_dims=np.array(self._dims),
             bins_flat=np.concatenate([self.bins[d] for d in self._dims]),
             bins_len=np.array([len(self.bins[d]) for d in self._dims]),
@@ -169,10 +326,21 @@ class TabularQAgent:
             ),
             rng_state=np.frombuffer(json.dumps(self.rng.bit_generator.state).encode(), np.uint8),
         )
-        atomic_write_bytes(path, buf.getvalue())
+        if isinstance(path, str | Path):
+            path = Path(path)
+            atomic_write_bytes(path if path.suffix else path.with_suffix(".npz"), buf.getvalue())
+        else:
+            path.write(buf.getvalue())
 
     @classmethod
-    def load(cls, path: str | Path) -> TabularQAgent:
+    def load(
+        cls,
+        path: str | Path | IO[bytes],
+        env: Any = None,
+        device: str = "cpu",
+        tensorboard_log: str | None = None,
+    ) -> TabularQAgent:
+        """An agent saved by :meth:`save`, set to learn on ``env`` (SB3's ``load``)."""
         with np.load(path) as z:
             edges = np.split(z["bins_flat"], np.cumsum(z["bins_len"])[:-1])
             bins = {int(d): list(map(float, e)) for d, e in zip(z["bins_dims"], edges, strict=True)}
@@ -186,6 +354,9 @@ class TabularQAgent:
                 epsilon_end=float(e1),
                 epsilon_decay_episodes=float(ed),
                 seed=int(seed),
+                env=env,
+                tensorboard_log=tensorboard_log,
+                device=device,
             )
             agent.table = z["table"].copy()
             agent.episodes = int(z["episodes"])
@@ -217,40 +388,11 @@ def _check_bins(bins: Any) -> dict[int, list[float]]:
     return out
 
 
-def train_tabular(
-    agent: TabularQAgent,
-    env: Any,
-    episodes: int,
-    on_episode: Any = None,
-    on_step: Callable[[list[float]], None] | None = None,
-) -> list[float]:
-    """Train on an SB3 ``VecEnv`` (``agents.common.vec_env.make_vec_env``) until ``episodes``
-    episodes have ended; returns the return of each finished episode. ``on_episode(n_done)`` is
-    called as they finish; ``on_step(returns)`` after every step of the environments, with the
-    returns of the episodes that ended at that step (often none)."""
-    obs = env.reset()
-    returns: list[float] = []
-    running = np.zeros(env.num_envs)
-    while len(returns) < episodes:
-        action = agent.act(obs, deterministic=False)
-        next_obs, reward, done, infos = env.step(action)
-        final = next_obs.copy()
-        terminated = np.zeros(env.num_envs, dtype=bool)
-        for i, info in enumerate(infos):
-            if done[i]:
-                final[i] = info["terminal_observation"]
-                terminated[i] = not info.get("TimeLimit.truncated", False)
-        agent.update(obs, action, reward, final, terminated)
-        running += reward
-        finished: list[float] = []
-        for j in np.flatnonzero(done):
-            finished.append(float(running[j]))
-            returns.append(finished[-1])
-            running[j] = 0.0
-            agent.episodes += 1
-            if on_episode is not None:
-                on_episode(len(returns))
-        if on_step is not None:
-            on_step(finished)
-        obs = next_obs
-    return returns[:episodes]
+class _NoCallback:
+    """SB3's callback hooks, doing nothing: :meth:`TabularQAgent.learn` without a callback."""
+
+    def on_step(self) -> bool:
+        return True  # go on
+
+    def __getattr__(self, name: str) -> Any:
+        return lambda *args: None  # on_training_start, on_rollout_start, update_locals, …

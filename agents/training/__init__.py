@@ -9,8 +9,8 @@ The training config is :class:`agents.config.TrainConfig`. A run is planned firs
   rounded to whole rollouts, the seed of a resumed run;
 - :mod:`.records`: checkpoints, evaluations on held-out episodes, the best model,
   ``training.json``: the output folder's files, each written atomically;
-- :mod:`.sb3_runner`: SB3 algorithms, with SB3's own checkpoint and evaluation callbacks;
-- :mod:`.tabular_runner`: the tabular Q-learning agent, with the same records;
+- :mod:`.runner`: trains any agent of the algorithm registry (SB3's algorithms, and the tabular
+  agent, which keeps SB3's model contract), with SB3's own checkpoint and evaluation callbacks;
 - the environments, from the config's ``env`` in :data:`envs.ENVIRONMENTS`:
   :mod:`agents.common.vec_env`.
 
@@ -44,7 +44,7 @@ from agents.training.plan import (
     rounded_total_steps,
 )
 from agents.training.records import RUN_DIRS, RUN_FILES, checkpoints
-from qkf.core.registry import load_object
+from agents.training.runner import run
 
 
 def run_training(plan: TrainPlan, progress: bool = True) -> Path:
@@ -52,9 +52,7 @@ def run_training(plan: TrainPlan, progress: bool = True) -> Path:
     SB3 algorithm refuses raise ``ConfigError`` before anything is written."""
     if plan.complete:
         return plan.model_path
-    runner = load_object(plan.algorithm.runner)  # the algorithm registry names its runner
-    path: Path = runner(plan, progress)
-    return path
+    return run(plan, progress)
 
 
 def train(

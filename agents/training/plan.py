@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import inspect
 import json
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,9 +36,9 @@ import yaml
 
 from agents.algorithms import ALGORITHMS, Algorithm, algorithm_class
 from agents.config import TrainConfig
-from agents.training.records import RUN_DIRS, RUN_FILES, RunInfo, checkpoints, read_json
+from agents.training.records import RUN_FILES, checkpoints, read_json
 from qkf.core.config import ConfigError
-from qkf.core.io import OutputError, atomic_write_text, check_output_dir
+from qkf.core.io import OutputError, check_output_dir
 
 RESUMABLE = ("total_steps", "episodes", "eval.every_steps", "torch_threads")
 """Config fields ``resume`` may change: they say how long to go on, not what is trained."""
@@ -70,7 +69,7 @@ class Rollout:
 def rollout_of(cfg: TrainConfig) -> Rollout | None:
     """The granularity of an SB3 agent's training (None: no SB3 class, or episode-based
     updates)."""
-    if ALGORITHMS[cfg.agent].load is None:
+    if not ALGORITHMS[cfg.agent].sb3:
         return None
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
     from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -114,7 +113,7 @@ class TrainPlan:
     cfg: TrainConfig  # as it will be trained (total_steps rounded)
     out: Path
     source: str  # how messages name the training config
-    requested_steps: int  # total_steps as asked
+    requested: int  # the budget (total_steps, or the tabular agent's episodes) as asked
     rollout: Rollout | None
     checkpoint: Path | None  # go on from it; None: a new run
     discard: bool  # remove the previous run's files before writing
@@ -129,19 +128,6 @@ class TrainPlan:
     @property
     def model_path(self) -> Path:
         return self.out / self.algorithm.model_file
-
-    def begin_run(self, info: RunInfo, fields: dict[str, Any]) -> None:
-        """The first writes of a run: the previous run's files go (if the plan says so), then
-        the config as trained and a first ``training.json`` (``complete: false``)."""
-        if self.discard:
-            for name in RUN_FILES:
-                (self.out / name).unlink(missing_ok=True)
-            for name in RUN_DIRS:
-                shutil.rmtree(self.out / name, ignore_errors=True)
-        self.out.mkdir(parents=True, exist_ok=True)
-        text = yaml.safe_dump(self.cfg.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
-        atomic_write_text(self.out / "config.yaml", text)
-        info.write(**fields, complete=False)
 
 
 def _canonical(cfg: TrainConfig | dict[str, Any]) -> dict[str, Any]:
@@ -241,7 +227,15 @@ def plan_training(
         checkpoint: Path | None = None, discard: bool = False, complete: bool = False
     ) -> TrainPlan:
         return TrainPlan(
-            eff, out, source, cfg.total_steps, rollout, checkpoint, discard, complete, tuple(notes)
+            eff,
+            out,
+            source,
+            getattr(cfg, algo.budget),
+            rollout,
+            checkpoint,
+            discard,
+            complete,
+            tuple(notes),
         )
 
     cfg_file = out / "config.yaml"

@@ -1,5 +1,5 @@
 """The records of a training run: checkpoints, evaluations on held-out episodes, the best model
-and ``training.json``, what both runners (:mod:`.sb3_runner`, :mod:`.tabular_runner`) keep.
+and ``training.json``, what the runner (:mod:`.runner`) keeps.
 
 - ``checkpoints/model_<steps>_steps.zip`` (SB3) or ``model_<episodes>_episodes.npz``
   (tabular): what a run resumes from (:func:`checkpoints` lists them);
@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import yaml
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from agents.algorithms import Algorithm
@@ -138,9 +139,11 @@ class RecordSchedule:
 
 class RunInfo:
     """``training.json``: fields written so far (each write rewrites the file atomically) and
-    the checkpoints the run was resumed from, oldest first."""
+    the checkpoints the run was resumed from, oldest first; and the run's first and last writes
+    (:meth:`begin`, :meth:`finish`)."""
 
     def __init__(self, out: Path, checkpoint: Path | None) -> None:
+        self.out = out
         self.path = out / "training.json"
         # read before the run's first write replaces the file
         previous = read_json(self.path) or {}
@@ -155,6 +158,28 @@ class RunInfo:
         self.fields.update(fields)
         self.fields["resumed_from"] = self.resumed_from
         atomic_write_text(self.path, json.dumps(self.fields, indent=2, ensure_ascii=False) + "\n")
+
+    def begin(self, cfg: TrainConfig, *, discard: bool, fields: dict[str, Any]) -> None:
+        """The first writes of a run: the previous run's files go (``discard``; nothing else
+        in the folder is touched), then the config as trained and a first ``training.json``
+        (``complete: false``)."""
+        if discard:
+            for name in RUN_FILES:
+                (self.out / name).unlink(missing_ok=True)
+            for name in RUN_DIRS:
+                shutil.rmtree(self.out / name, ignore_errors=True)
+        self.out.mkdir(parents=True, exist_ok=True)
+        text = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+        atomic_write_text(self.out / "config.yaml", text)
+        self.write(**fields, complete=False)
+
+    def finish(self, model: Any, path: Path, **fields: Any) -> None:
+        """The last writes of a run: the model (``model.save`` into memory, then one atomic
+        write to ``path``), then ``training.json`` with ``complete: true``."""
+        buf = io.BytesIO()
+        model.save(buf)
+        atomic_write_bytes(path, buf.getvalue())
+        self.write(**fields, complete=True, model=path.name)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -182,22 +207,6 @@ def evaluation_env(cfg: TrainConfig) -> HeldOutEpisodes:
     """``eval.episodes`` episodes of the config's environment on the seeds ``eval.seed + i``,
     apart from training's ``seed + i``; the learner's reward scale does not apply."""
     return HeldOutEpisodes(make_vec_env(cfg, cfg.eval.episodes, cfg.eval.seed), cfg.eval.seed)
-
-
-def evaluate(model: Any, env: HeldOutEpisodes) -> tuple[np.ndarray, np.ndarray]:
-    """Greedy returns and lengths of one episode per sub-environment of ``env``, by SB3's
-    ``evaluate_policy`` (``model.predict``: an SB3 model or the tabular agent)."""
-    from stable_baselines3.common.evaluation import evaluate_policy
-
-    returns, lengths = evaluate_policy(
-        model,
-        env,
-        n_eval_episodes=env.num_envs,
-        deterministic=True,
-        return_episode_rewards=True,
-        warn=False,  # the episode returns are summed here, not read from a Monitor
-    )
-    return np.asarray(returns, dtype=float), np.asarray(lengths, dtype=np.int64)
 
 
 @dataclass

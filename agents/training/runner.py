@@ -1,5 +1,9 @@
-"""The Stable-Baselines3 runner: trains an SB3 algorithm on a plan (:mod:`.plan`), with SB3's own
-callbacks for what they do, and the project's records (:mod:`.records`) for what they do not.
+"""The training runner: trains the plan's agent (:mod:`.plan`), an SB3 algorithm or the tabular
+agent, which keeps SB3's model contract (:mod:`agents.tabular`), with SB3's own callbacks for
+what they do, and the project's records (:mod:`.records`) for what they do not. What differs
+between agents comes from the algorithm registry (:data:`agents.algorithms.ALGORITHMS`): the
+constructor's arguments, the model's format, and what ``learn`` counts (steps, or the tabular
+agent's episodes), which also names its checkpoints (``model_<episodes>_episodes.npz``).
 
 SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_steps.zip``,
 ``EvalCallback`` evaluates on the held-out episodes, logs ``eval/mean_reward`` and
@@ -8,7 +12,8 @@ SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_step
 
 - *when* they run (:class:`BetweenUpdates`): between two updates, at the first rollout start at
   or after every ``eval.every_steps`` steps, and at the end. A checkpoint saved there is a clean
-  point to resume from (the rollout buffer, which it does not hold, is empty);
+  point to resume from (the rollout buffer, which it does not hold, is empty); for the tabular
+  agent a rollout ends with an episode, so none is cut short;
 - atomic files: the callbacks write into staging folders, then every file is renamed into place
   (:func:`~agents.training.records.publish_staged`), so an interrupted save never leaves a
   truncated checkpoint for a resume to pick up;
@@ -17,6 +22,7 @@ SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_step
   a resume continues, ``best/best.json`` and ``training.json``;
 - reward scaling for the learner (:class:`~agents.common.vec_env.ScaledReward`) and a
   deterministic resume (:func:`~agents.training.plan.resume_seed`);
+- ``torch_threads`` for torch's intra-op pool (SB3 has loaded torch already);
 - imitation first (``imitation:``): DAgger from the environment's expert
   (:func:`agents.imitation.dagger`) on the training environment before ``model.learn``, its
   rounds in ``imitation.json``; a resumed run does not imitate again (its checkpoint holds the
@@ -26,7 +32,6 @@ SB3 does the work: ``CheckpointCallback`` saves ``checkpoints/model_<steps>_step
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import os
 import time
@@ -43,8 +48,8 @@ from stable_baselines3.common.callbacks import (
 )
 from stable_baselines3.common.vec_env import VecEnv
 
-from agents.algorithms import ALGORITHMS, algorithm_class
-from agents.common.vec_env import ScaledReward, make_vec_env, monitored
+from agents.algorithms import Algorithm, algorithm_class
+from agents.common.vec_env import learner_env
 from agents.config import HEADER
 from agents.training.plan import TrainPlan, resume_seed
 from agents.training.records import (
@@ -63,7 +68,7 @@ from agents.training.records import (
     write_best,
 )
 from qkf.core.config import ConfigError
-from qkf.core.io import atomic_write_bytes, atomic_write_text
+from qkf.core.io import atomic_write_text
 
 IMITATION = "imitation.json"
 """The DAgger rounds of a run with ``imitation:`` (:class:`agents.imitation.DaggerRound`)."""
@@ -96,14 +101,22 @@ class BetweenUpdates(EventCallback):
 
 
 class AtomicCheckpoint(CheckpointCallback):
-    """SB3's ``CheckpointCallback`` (``model_<steps>_steps.zip``; ``save_freq=1``: a checkpoint
-    whenever it is called, :class:`BetweenUpdates` decides when), its file written into a
-    staging folder and then renamed into ``folder``."""
+    """SB3's ``CheckpointCallback`` (``save_freq=1``: a checkpoint whenever it is called,
+    :class:`BetweenUpdates` decides when), named by the algorithm (SB3's
+    ``model_<steps>_steps.zip``, or its counterpart in the algorithm's unit), its file written
+    into a staging folder and then renamed into ``folder``."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, algorithm: Algorithm) -> None:
         super().__init__(save_freq=1, save_path=str(fresh_staging(folder)), name_prefix="model")
         self.folder = folder
+        self.algorithm = algorithm
         self.last_saved: str | None = None  # the name of the newest checkpoint
+
+    def _checkpoint_path(self, checkpoint_type: str = "", extension: str = "") -> str:
+        if checkpoint_type:  # a replay buffer or VecNormalize (not saved here): SB3's name
+            return super()._checkpoint_path(checkpoint_type, extension)
+        progress = int(getattr(self.model, self.algorithm.counter))
+        return os.path.join(self.save_path, self.algorithm.checkpoint_name(progress))
 
     def _on_step(self) -> bool:
         go_on = super()._on_step()
@@ -166,7 +179,7 @@ class HeldOutEvaluation(EvalCallback):
 
 
 class RecordProgress(BaseCallback):
-    """``training.json`` after each record: the newest checkpoint and the steps trained."""
+    """``training.json`` after each record: the newest checkpoint and the progress made."""
 
     def __init__(self, info: RunInfo, checkpoint: AtomicCheckpoint) -> None:
         super().__init__()
@@ -174,8 +187,18 @@ class RecordProgress(BaseCallback):
         self.checkpoint = checkpoint
 
     def _on_step(self) -> bool:
-        self.info.write(checkpoint=self.checkpoint.last_saved, num_timesteps=self.num_timesteps)
+        self.info.write(
+            checkpoint=self.checkpoint.last_saved,
+            **_progress(self.model, self.checkpoint.algorithm),
+        )
         return True
+
+
+def _progress(model: Any, algorithm: Algorithm) -> dict[str, int]:
+    """What ``training.json`` says of the progress made: the steps, and the algorithm's own
+    counter (the tabular agent's episodes)."""
+    counted = int(getattr(model, algorithm.counter))
+    return {"num_timesteps": int(model.num_timesteps), algorithm.counter: counted}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -183,26 +206,28 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _build(plan: TrainPlan, algo: Any, env: VecEnv, seed: int) -> Any:
-    """The model of class ``algo``: loaded from the plan's checkpoint, or new;
-    ``ConfigError`` for hyperparameter values the algorithm refuses (nothing has been written
-    yet)."""
-    cfg, out = plan.cfg, plan.out
+    """The model of class ``algo``: loaded from the plan's checkpoint, or new, built with the
+    config's settings for it (``hyperparams``, or ``tabular``); ``ConfigError`` for values the
+    algorithm refuses (nothing has been written yet)."""
+    cfg, out, algorithm = plan.cfg, plan.out, plan.algorithm
     if plan.checkpoint is not None:
         model = algo.load(plan.checkpoint, env=env, device="cpu", tensorboard_log=str(out / "tb"))
         model.set_random_seed(seed)  # torch, numpy and the environments: a reproducible resume
         return model
+    policy = () if algorithm.policy is None else (algorithm.policy,)
+    settings = getattr(cfg, algorithm.settings)
     try:
         return algo(
-            ALGORITHMS[cfg.agent].policy,
-            env,
+            *policy,
+            env=env,
             seed=cfg.seed,
             device="cpu",
             tensorboard_log=str(out / "tb"),
-            **cfg.hyperparams,
+            **settings,
         )
     except (TypeError, ValueError, AssertionError) as exc:
         raise ConfigError(
-            f"{HEADER}\n  {plan.source}: hyperparams: {algo.__name__} refuses them: "
+            f"{HEADER}\n  {plan.source}: {algorithm.settings}: {algo.__name__} refuses them: "
             f"{_one_line(exc)}"
         ) from None
 
@@ -239,37 +264,38 @@ def _imitate(plan: TrainPlan, model: Any, env: VecEnv) -> None:
     atomic_write_text(plan.out / IMITATION, json.dumps(record, indent=2) + "\n")
 
 
-def run_sb3(plan: TrainPlan, progress: bool) -> Path:
-    """Train the plan's SB3 agent; returns the path of the saved model."""
+def run(plan: TrainPlan, progress: bool) -> Path:
+    """Train the plan's agent; returns the path of the saved model."""
     import torch  # SB3 has loaded it already
 
     torch.set_num_threads(plan.cfg.torch_threads)
-    cfg, out = plan.cfg, plan.out
+    cfg, out, algorithm = plan.cfg, plan.out, plan.algorithm
     algo = algorithm_class(cfg.agent)
     seed = cfg.seed
     if plan.checkpoint is not None:  # new episodes, drawn reproducibly from the progress made
-        seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, plan.algorithm))
-    env: VecEnv = monitored(make_vec_env(cfg, cfg.n_envs, seed))
-    if cfg.reward_scale != 1.0 or cfg.reward_clip is not None:
-        env = ScaledReward(env, cfg.reward_scale, cfg.reward_clip)
+        seed = resume_seed(cfg.seed, checkpoint_progress(plan.checkpoint, algorithm))
+    env = learner_env(cfg, seed)
     model = _build(plan, algo, env, seed)
     start = int(model.num_timesteps)
     resumed = plan.checkpoint is not None
     info = RunInfo(out, plan.checkpoint)
     history = EvaluationHistory.resumed(out, start) if resumed else EvaluationHistory()
     held_out = evaluation_env(cfg)
-    plan.begin_run(
-        info,
-        {
+    target = int(getattr(cfg, algorithm.budget))
+    info.begin(
+        cfg,
+        discard=plan.discard,
+        fields={
             "agent": cfg.agent,
             "algorithm": algo.__name__,
-            "total_steps_requested": plan.requested_steps,
-            "total_steps": cfg.total_steps,
+            f"{algorithm.budget}_requested": plan.requested,
+            algorithm.budget: target,
             "rounding": plan.rollout.describe() if plan.rollout is not None else None,
-            "num_timesteps": start,
+            # the tabular agent's counter is its budget's name: from here, episodes done
+            **_progress(model, algorithm),
         },
     )
-    checkpoint = AtomicCheckpoint(out / CHECKPOINTS)
+    checkpoint = AtomicCheckpoint(out / CHECKPOINTS, algorithm)
     records = CallbackList(
         [
             checkpoint,
@@ -283,20 +309,17 @@ def run_sb3(plan: TrainPlan, progress: bool) -> Path:
         _imitate(plan, model, env)
     if cfg.imitation is None or cfg.imitation.then_rl:
         model.learn(
-            max(0, cfg.total_steps - start),
+            max(0, target - int(getattr(model, algorithm.counter))),
             callback=BetweenUpdates(schedule, records),
             progress_bar=progress,
             reset_num_timesteps=not resumed,
         )
-    buf = io.BytesIO()
-    model.save(buf)
-    atomic_write_bytes(out / "model.zip", buf.getvalue())
-    info.write(
-        num_timesteps=int(model.num_timesteps),
-        complete=True,
-        model="model.zip",
+    info.finish(
+        model,
+        plan.model_path,
         wall_s=round(time.perf_counter() - started, 1),  # this session's, on os.cpu_count() cores
         cpu_count=os.cpu_count(),
+        **_progress(model, algorithm),
     )
     remove_staging(out)
-    return out / "model.zip"
+    return plan.model_path
