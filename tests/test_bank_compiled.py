@@ -18,21 +18,9 @@ from qkf.transfer_alignment.methods.bank_compiled import (
     run_bank,
 )
 from qkf.transfer_alignment.methods.base import MethodOutput, action_values, new_filter
-from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, mixture_covariance
-from qkf.transfer_alignment.methods.imm import (
-    imm_filter,
-    imm_filter_reference,
-    mix_bank,
-    transition_matrix,
-    unit_calibration_noise,
-    update_model_probabilities,
-)
-from qkf.transfer_alignment.methods.mmae import (
-    combine,
-    run_mmae,
-    run_mmae_reference,
-    update_log_weights,
-)
+from qkf.transfer_alignment.methods.covariance import CovarianceRecorder
+from qkf.transfer_alignment.methods.imm import imm_filter, transition_matrix
+from qkf.transfer_alignment.methods.mmae import run_mmae
 from qkf.transfer_alignment.scenario import ScenarioData, simulate
 from tests.bank_reference import (
     combine_compiled,
@@ -41,6 +29,13 @@ from tests.bank_reference import (
     unit_calibration_noise_compiled,
 )
 from tests.conftest import cfg_with
+from tests.imm_numpy import (
+    imm_filter_reference,
+    mix_bank,
+    unit_calibration_noise,
+    update_model_probabilities,
+)
+from tests.mmae_numpy import combine, mixture_covariance, run_mmae_reference, update_log_weights
 
 # ---- U ------------------------------------------------------------------------------------------
 

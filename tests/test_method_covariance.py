@@ -13,12 +13,12 @@ from qkf.transfer_alignment.methods.base import new_filter
 from qkf.transfer_alignment.methods.covariance import (
     CovarianceRecorder,
     covariance_epochs,
-    mixture_covariance,
     step_recording,
 )
 from qkf.transfer_alignment.methods.fixed import run_kf
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
+from tests.mmae_numpy import mixture_covariance
 
 SHORT = ("scenario.duration_s=240", "run.settled_s=120", "run.nees_every_s=5")
 

@@ -10,7 +10,6 @@ from qkf.core import kalman
 from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
 from qkf.transfer_alignment.methods import METHODS
 from qkf.transfer_alignment.methods.fixed import tuned_kappa
-from qkf.transfer_alignment.methods.mmae import combine, update_log_weights
 from qkf.transfer_alignment.methods.qlearning import greedy_switch, q_update, run_qkf
 from qkf.transfer_alignment.methods.sage_husa import (
     forgetting_weights,
@@ -19,6 +18,7 @@ from qkf.transfer_alignment.methods.sage_husa import (
 )
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
+from tests.mmae_numpy import combine, update_log_weights
 
 
 def test_sage_husa_forgetting_weights() -> None:

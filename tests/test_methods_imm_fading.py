@@ -27,20 +27,18 @@ from qkf.transfer_alignment.methods.fading import (
     strong_tracking_step,
     transition,
 )
-from qkf.transfer_alignment.methods.imm import (
-    imm_filter,
-    mix_bank,
-    mix_moments,
-    mixing_probabilities,
-    run_imm,
-    transition_matrix,
-    unit_calibration_noise,
-    update_model_probabilities,
-)
-from qkf.transfer_alignment.methods.mmae import update_log_weights
+from qkf.transfer_alignment.methods.imm import imm_filter, run_imm, transition_matrix
 from qkf.transfer_alignment.model import calibration_matrix, discretize
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
+from tests.imm_numpy import (
+    mix_bank,
+    mix_moments,
+    mixing_probabilities,
+    unit_calibration_noise,
+    update_model_probabilities,
+)
+from tests.mmae_numpy import update_log_weights
 
 PRESETS = ["paper", "attitude_only", "thermal_drift", "thermal_snap", "noise_mismatch"]
 

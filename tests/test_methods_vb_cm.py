@@ -19,17 +19,12 @@ from qkf.transfer_alignment.methods.covariance_matching import (
     run_covariance_matching,
     window_estimate,
 )
-from qkf.transfer_alignment.methods.vbakf import (
-    VbStep,
-    attitude_innovation,
-    r_prior,
-    run_vbakf,
-    scaled_measurement,
-    vb_step,
-)
+from qkf.transfer_alignment.methods.vbakf import r_prior, run_vbakf
 from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch, vb_epoch_serial
+from qkf.transfer_alignment.model_compiled import attitude_innovation
 from qkf.transfer_alignment.scenario import simulate
 from tests.conftest import cfg_with
+from tests.vbakf_numpy import VbStep, scaled_measurement, vb_step
 
 # ---- VBAKF: the generic step -------------------------------------------------------------------
 

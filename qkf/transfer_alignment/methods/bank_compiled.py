@@ -31,15 +31,15 @@ Each routine has a numpy reference, which stays the documented and tested defini
 ``tests/bank_reference.py``, and both methods end to end):
 
 ========================  ===========================================================
-compiled (here)           numpy reference
+compiled (here)           numpy reference (``tests/mmae_numpy.py``, ``tests/imm_numpy.py``)
 ========================  ===========================================================
-mmae_log_weights          :func:`qkf.transfer_alignment.methods.mmae.update_log_weights`
-imm_probabilities         :func:`qkf.transfer_alignment.methods.imm.update_model_probabilities`
-combine_one               :func:`qkf.transfer_alignment.methods.mmae.combine`
-mixture_covariance_one    :func:`qkf.transfer_alignment.methods.covariance.mixture_covariance`
-mix_trial                 :func:`qkf.transfer_alignment.methods.imm.mix_bank`
-unit_noise                :func:`qkf.transfer_alignment.methods.imm.unit_calibration_noise`
-run_bank                  ``mmae.run_mmae_reference``, ``imm.imm_filter_reference``
+mmae_log_weights          ``mmae_numpy.update_log_weights``
+imm_probabilities         ``imm_numpy.update_model_probabilities``
+combine_one               ``mmae_numpy.combine``
+mixture_covariance_one    ``mmae_numpy.mixture_covariance``
+mix_trial                 ``imm_numpy.mix_bank``
+unit_noise                ``imm_numpy.unit_calibration_noise``
+run_bank                  ``mmae_numpy.run_mmae_reference``, ``imm_numpy.imm_filter_reference``
 ========================  ===========================================================
 
 The results equal the numpy ones to rounding: sums run in another order (with the kernels'
@@ -206,7 +206,7 @@ def mmae_log_weights(log_w: np.ndarray, ll: np.ndarray, floor: float, w: np.ndar
         log w_i ← log w_i
 
     A diverged model (non-finite ℓ) has weight 0 for good; with no live model at all every
-    weight is NaN (as in the numpy reference, :func:`mmae.update_log_weights`).
+    weight is NaN (as in the numpy reference, ``mmae_numpy.update_log_weights``).
     """
     n = log_w.shape[0]
     top = -np.inf
@@ -248,7 +248,7 @@ def imm_probabilities(c_bar: np.ndarray, ll: np.ndarray, out: np.ndarray) -> flo
     ``Σ_j μ_j`` (1, or 0 when no model is alive).
 
     A model with a non-finite ``ℓ`` or ``c̄ = 0`` gets ``μ = 0``; with none alive, all zeros
-    (as :func:`imm.update_model_probabilities`)::
+    (as ``imm_numpy.update_model_probabilities``)::
 
         λ_j = log c̄_j + ℓ_j,   μ_j = exp(λ_j − max λ) / Σ_i exp(λ_i − max λ)
     """
@@ -294,7 +294,7 @@ def _first_argmax(w: np.ndarray) -> int:
 def combine_one(est: np.ndarray, w: np.ndarray, out: np.ndarray, rel: np.ndarray) -> None:
     r"""Weighted estimate of a bank at one epoch: ``est`` (A, 16) the models' estimates (finite:
     diverged ones neutral), ``w`` (A,) weights summing to 1, into ``out`` (16,); ``rel`` (A, 3)
-    scratch. As :func:`mmae.combine`::
+    scratch. As ``mmae_numpy.combine``::
 
         b̂ = Σ_j w_j b̂_j,   p̂ = Σ_j w_j p̂_j
         δθ_j = Log(Ĉ_refᵀ Ĉ_j),   Ĉ = Ĉ_ref Exp(Σ_j w_j δθ_j)   (normalised)
@@ -334,7 +334,7 @@ def mixture_covariance_one(
     used: np.ndarray,
 ) -> None:
     r"""Covariance (15, 15) of a bank about its combined estimate, into ``out``, as
-    :func:`covariance.mixture_covariance`::
+    ``mmae_numpy.mixture_covariance``::
 
         P = Σ_j w_j (P_j + d_j d_jᵀ),   d_j = (Log(Ĉ_mixᵀ Ĉ_j), b̂_j − b̂_mix, p̂_j − p̂_mix)
 
@@ -415,7 +415,7 @@ def unit_noise(
     wk: _Work,
 ) -> bool:
     r"""``U = ∂Q_d/∂q_p`` (15, 15, s) at the rate ``rate`` (rad/s) and ``A = (I + K(p̂))⁻¹``, into
-    ``u``, as :func:`imm.unit_calibration_noise`. With ``W = [ω̂×]``, ``M = A Ω Ωᵀ Aᵀ``::
+    ``u``, as ``imm_numpy.unit_calibration_noise``. With ``W = [ω̂×]``, ``M = A Ω Ωᵀ Aᵀ``::
 
         U_θθ = Σ_{n+m ≤ 4} (−W)ⁿ M Wᵐ Δtⁿ⁺ᵐ⁺³ / ((n+1)! (m+1)! (n+m+3))     (symmetrised)
         U_θp = −Σ_n (−W)ⁿ Δtⁿ⁺² / (n+2)! · A Ω,    U_pθ = U_θpᵀ,    U_pp = Δt I
@@ -519,7 +519,7 @@ def mix_trial(
     wk: _Work,
 ) -> bool:
     r"""Mix the predicted states of one trial's bank (rows ``r0 … r0 + A − 1`` of ``state``) in
-    place, as :func:`imm.mix_bank`; ``c̄`` (A,) into ``c_bar``. Returns whether it mixed.
+    place, as ``imm_numpy.mix_bank``; ``c̄`` (A,) into ``c_bar``. Returns whether it mixed.
 
     ``μ`` (A,) the model probabilities; ``Π`` (A, A) as ``trans`` and split as
     ``Π_ij = c + R_ij`` (``trans_c`` = c, ``trans_r`` = R: diagonal for uniform switching,

@@ -17,7 +17,6 @@ import dataclasses
 
 import numpy as np
 
-from qkf.core.quat import attitude_error
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.filter import (
     FilterRecord,
@@ -131,29 +130,3 @@ def step_arrays(
             recorder.take(epoch0 + k, rec.cov[:, 0])
             start = k + 1
     return FilterRecord(cov=None, **out)
-
-
-def mixture_covariance(
-    est: np.ndarray, cov: np.ndarray, weights: np.ndarray, est_mix: np.ndarray
-) -> np.ndarray:
-    """Covariance of a weighted bank about its combined estimate (B, 15, 15).
-
-    ``P = Σ_a w_a (P_a + d_a d_aᵀ)`` with ``d_a`` the bank member's estimate relative to the
-    combined one in the error-state convention (``δθ = Log(Ĉ_mixᵀ Ĉ_a)``, ``Δb = b̂_a − b̂_mix``,
-    ``Δp = p̂_a − p̂_mix``). ``est`` (B, A, 16), ``cov`` (B, A, 15, 15), ``weights`` (B, A)
-    summing to one, ``est_mix`` (B, 16). Members with weight 0 (diverged) are left out.
-    """
-    b, n_act = weights.shape
-    use = (weights > 0.0) & np.isfinite(est).all(axis=-1) & np.isfinite(cov).all(axis=(-1, -2))
-    w = np.where(use, weights, 0.0)
-    d = np.zeros((b, n_act, N_STATES))
-    ok_mix = np.isfinite(est_mix).all(axis=-1)
-    rows = use & ok_mix[:, None]
-    if rows.any():
-        q_mix = np.broadcast_to(est_mix[:, None, 0:4], (b, n_act, 4))[rows]
-        d[rows, 0:3] = attitude_error(q_mix, est[rows][:, 0:4])  # δθ = Log(Ĉ_mixᵀ Ĉ_a)
-        d[rows, 3:] = est[rows][:, 4:] - np.broadcast_to(est_mix[:, None, 4:], (b, n_act, 12))[rows]
-    spread = cov + d[..., :, None] * d[..., None, :]
-    out = np.einsum("ba,baij->bij", w, np.where(use[..., None, None], spread, 0.0))
-    out[~ok_mix | ~use.any(axis=1)] = np.nan
-    return 0.5 * (out + np.swapaxes(out, -1, -2))

@@ -1,5 +1,5 @@
-r"""The VBAKF measurement update compiled (numba): the twin of the numpy reference
-:func:`qkf.transfer_alignment.methods.vbakf.vb_step`, and the per-epoch step of
+r"""The VBAKF measurement update compiled (numba), tested against the numpy reference
+``vb_step`` of ``tests/vbakf_numpy.py``, and the per-epoch step of
 :func:`~qkf.transfer_alignment.methods.vbakf.run_vbakf` built on it.
 
 The equations are those of Huang et al. 2018, Algorithm 1 (module docstring of
@@ -23,14 +23,14 @@ Joseph form's robustness to an error in ``K``, at the cost of ``U = H P̂⁻`` (
 skipped: the attitude rows of ``H`` have one non-zero) and two m × n × n products instead of
 the two n³ ones of ``(I − K H) P̂⁻ (I − K H)ᵀ``. In :func:`run_vbakf` the last iteration stops
 after ``P̂⁻`` and ``R̂``: its gain and posterior are the filter's own update, formed there.
-The results equal :func:`vb_step`'s to rounding (the sums run in another order, ``S`` is
+The results equal ``vb_step``'s to rounding (the sums run in another order, ``S`` is
 factored by Cholesky instead of LU); ``tests/test_methods_vb_cm.py`` checks it. The compiled
 step is for the 15 error states of the transfer-alignment model (any ``m`` and adapted
-block ``a``); :func:`vb_step` stays the reference for any size.
+block ``a``); ``vb_step`` is the reference for any size.
 
 :func:`vb_epoch` is one measurement epoch of :func:`run_vbakf` for every trial: the filter's
 measurement model at its current estimate, in its scaled units (as
-:func:`~qkf.transfer_alignment.methods.vbakf.scaled_measurement`, with the compiled ``A`` of
+``scaled_measurement`` of ``tests/vbakf_numpy.py``, with the compiled ``A`` of
 :mod:`qkf.transfer_alignment.model_compiled`, the filter's own), the finiteness checks, the N
 iterations, and the hand-over (``P̂⁻``, ``σ̂_a``, the R posterior, the effective κ). Trials run
 in parallel (``prange``; :func:`vb_epoch_serial` runs the same per-trial code in the calling
@@ -93,7 +93,8 @@ def vb_iterate(
     ``n`` is the model's 15 error states (:data:`~qkf.transfer_alignment.model.N_STATES`), a
     compile-time constant: the row loops then have a known trip count and vectorise without
     runtime checks (about 25 % faster than with ``n`` read from the shapes). The callers
-    (``vbakf.vb_step(..., compiled=True)``, :func:`vb_epoch`) check the shapes.
+    (:func:`vb_epoch`; ``vb_step(..., compiled=True)`` of ``tests/vbakf_numpy.py``) check the
+    shapes.
     """
     n = N_STATES  # compile-time trip count of the row loops
     m = nu.shape[0]
