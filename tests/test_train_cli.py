@@ -81,6 +81,9 @@ def _info(out: Path) -> dict[str, Any]:
         (TABULAR, ["tabular={alpha: 2}"], ["tabular.alpha: must be in (0, 1], got 2"]),
         (TABULAR, ["tabular={bins: {12: [0.0]}}"], ["tabular.bins: 12 is not an observation"]),
         (TABULAR, ["hyperparams={n_steps: 8}"], ["hyperparams: the tabular agent takes no"]),
+        # SB3's constructor arguments, which the runner passes to the tabular agent too
+        (TABULAR, ["tabular={device: cuda}"], ["tabular.device: set by qkf train (cpu)"]),
+        (TABULAR, ["tabular={env: x}"], ["tabular.env: set by qkf train"]),
         (PPO, ["tabular={alpha: 0.5}"], ["tabular: only the tabular agent reads it"]),
         (PPO, ["hyperparams={n_steps: 0}"], ["hyperparams.n_steps: must be a positive integer"]),
         # a value only the algorithm itself can judge: refused when it is built, still before
