@@ -106,6 +106,7 @@ def test_learn_calls_sb3_callbacks_with_rollouts_ending_at_episode_ends() -> Non
     assert hooks.calls["rollout_start"] == [0, 6, 10, 12]
     assert hooks.calls["rollout_end"] == [6, 10, 12, 18]
     assert hooks.model is agent and agent.logger is not None  # SB3's logger, for callbacks
+    assert {"new_obs", "rewards", "dones", "infos"} <= hooks.locals.keys()  # SB3's names
 
 
 def test_a_callback_that_returns_false_stops_learning() -> None:
@@ -129,6 +130,9 @@ def test_sb3_constructor_load_save_and_env() -> None:
     copy = TabularQAgent.load(buf, env=other, device="cpu")
     np.testing.assert_array_equal(copy.table, agent.table)
     assert copy.get_env() is other and copy.episodes == agent.episodes
+    assert copy.num_timesteps == agent.num_timesteps
+    np.testing.assert_array_equal(copy.visits, agent.visits)
+    assert copy.rng.bit_generator.state == agent.rng.bit_generator.state
     copy.set_random_seed(17)  # SB3's: seeds the environment
     other.reset()
     assert other.seeded == [17, 18]

@@ -242,24 +242,25 @@ class TabularQAgent:
         with Progress(disable=not progress_bar) as bar:
             task = bar.add_task("tabular episodes", total=target, completed=self.episodes)
             while self.episodes < target:
-                action = self.act(obs, deterministic=False)
-                next_obs, reward, done, infos = env.step(action)
-                final = next_obs.copy()  # the transition's next state: the terminal one
+                actions = self.act(obs, deterministic=False)
+                # SB3's names for these: its callbacks read them from locals
+                new_obs, rewards, dones, infos = env.step(actions)
+                final = new_obs.copy()  # the transition's next state: the terminal one
                 terminated = np.zeros(env.num_envs, dtype=bool)
-                for i in np.flatnonzero(done):
+                for i in np.flatnonzero(dones):
                     final[i] = infos[i]["terminal_observation"]
                     terminated[i] = not infos[i].get("TimeLimit.truncated", False)
-                self.update(obs, action, reward, final, terminated)
-                running += reward
-                finished = [float(r) for r in running[done]]
-                running[done] = 0.0
+                self.update(obs, actions, rewards, final, terminated)
+                running += rewards
+                finished = [float(r) for r in running[dones]]
+                running[dones] = 0.0
                 self.episodes += len(finished)
                 self._log(finished)
                 bar.update(task, completed=self.episodes)
                 hooks.update_locals(locals())
                 if not hooks.on_step():
                     break
-                obs = next_obs
+                obs = new_obs
                 if finished:  # an episode ended: so does the rollout
                     hooks.on_rollout_end()
                     if self.episodes < target:
