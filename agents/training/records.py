@@ -246,28 +246,6 @@ class EvaluationHistory:
             shutil.rmtree(out / BEST, ignore_errors=True)
         return history
 
-    def add(self, step: int, returns: np.ndarray, lengths: np.ndarray) -> bool:
-        """Record an evaluation; whether its mean return is a new best."""
-        self.timesteps.append(step)
-        self.results.append(returns)
-        self.lengths.append(lengths)
-        mean = float(np.mean(returns))
-        if mean > self.best:
-            self.best = mean
-            return True
-        return False
-
-    def write(self, out: Path) -> None:
-        """``eval/evaluations.npz``, atomically."""
-        buf = io.BytesIO()
-        np.savez(
-            buf,
-            timesteps=np.array(self.timesteps, dtype=np.int64),
-            results=np.array(self.results),
-            ep_lengths=np.array(self.lengths),
-        )
-        atomic_write_bytes(out / EVALUATIONS, buf.getvalue())
-
 
 def write_best(out: Path, step: int, mean: float, checkpoint: str) -> None:
     """``best/best.json``: when the best model was evaluated, its mean return, its checkpoint."""
