@@ -117,6 +117,55 @@ def test_a_callback_that_returns_false_stops_learning() -> None:
     assert agent.episodes == 1 and hooks.calls["training_end"] == [8]  # ended at step 3
 
 
+def test_a_second_learn_goes_on_from_where_the_first_stopped_unless_it_resets() -> None:
+    # SB3 resets the environment only when reset_num_timesteps or on the first call: episodes
+    # of 5 steps, 2 learned, then 1 more goes on from step 2 of the running episodes
+    env = StaggeredEpisodes((5, 7))
+    agent = TabularQAgent(env=env, bins={0: [0.5]}, seed=2)
+    agent.learn(1)
+    assert agent.num_timesteps == 10 and env.t.tolist() == [0, 5]
+    agent.learn(1, reset_num_timesteps=False)  # sub-env 1 ends its episode at its step 7
+    assert agent.num_timesteps == 14 and env.t.tolist() == [2, 0]
+    agent.learn(1)  # resets: 5 more steps
+    assert agent.num_timesteps == 24 and env.t.tolist() == [0, 5]
+    agent.set_env(env)  # a new env: the next learn starts new episodes even without a reset
+    agent.learn(1, reset_num_timesteps=False)
+    assert agent.num_timesteps == 34
+
+
+class ScaledMonitor(StaggeredEpisodes):
+    """Rewards × 0.5, the unscaled return in ``info["episode"]`` (a ``VecMonitor`` below a
+    reward scaling, as the training runner stacks them)."""
+
+    def step_wait(self) -> Any:
+        obs, rewards, done, infos = super().step_wait()
+        for i in np.flatnonzero(done):
+            infos[i]["episode"] = {"r": float(self.lengths[i]), "l": int(self.lengths[i])}
+        return obs, 0.5 * rewards, done, infos
+
+
+def test_the_logged_return_is_the_monitors_unscaled_one(tmp_path: Path) -> None:
+    from stable_baselines3.common.logger import Logger
+
+    seen: list[float] = []
+
+    class Recorder(Logger):
+        def record(self, key: str, value: Any, exclude: Any = None) -> None:
+            if key == "rollout/ep_return":
+                seen.append(float(value))
+
+    class Swap(BaseCallback):  # learn sets up SB3's logger; the recorder replaces it
+        def _on_training_start(self) -> None:
+            self.model.logger = Recorder(None, [])
+
+        def _on_step(self) -> bool:
+            return True
+
+    agent = TabularQAgent(env=ScaledMonitor((3, 4)), bins={0: [0.5]})
+    agent.learn(3, callback=Swap())
+    assert seen == [3.0, 4.0, 3.0]  # the lengths, not the learner's 1.5, 2.0, 1.5
+
+
 def test_sb3_constructor_load_save_and_env() -> None:
     env = StaggeredEpisodes((2, 2), n_actions=4)
     agent = TabularQAgent(env=env, bins={0: [0.5]}, seed=5)

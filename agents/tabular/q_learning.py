@@ -49,6 +49,13 @@ DEFAULT_BINS: dict[int, list[float]] = {
 }
 
 
+def _episode_return(info: dict[str, Any], running: float) -> float:
+    """An ended episode's return: the ``VecMonitor``'s (the environment's reward, before a
+    learner's scaling) if it recorded one, else the sum of the rewards learned from."""
+    episode = info.get("episode")
+    return float(episode["r"]) if episode is not None else float(running)
+
+
 @dataclass
 class TabularQAgent:
     """Q-learning over binned observations; SB3's model contract (see the module docstring).
@@ -92,6 +99,9 @@ class TabularQAgent:
         self.visits = np.zeros(self.table.shape[0], dtype=np.int64)
         self.rng = np.random.default_rng(self.seed)
         self.logger: Any = None  # SB3's Logger while it learns with a callback or TensorBoard
+        # SB3's: where the last learn stopped, so the next one goes on from there (None: reset)
+        self._last_obs: np.ndarray | None = None
+        self._returns: np.ndarray | None = None  # the running episodes' returns so far
 
     @staticmethod
     def _env_actions(env: Any, n_actions: int | None) -> int:
@@ -199,6 +209,7 @@ class TabularQAgent:
         """Learn on ``env`` from now on; ``ValueError`` if its actions do not fit the table."""
         self._env_actions(env, self.n_actions)
         self.env = env
+        self._last_obs = self._returns = None  # the next learn starts new episodes
 
     def get_vec_normalize_env(self) -> Any:
         """None: no observation normalisation (SB3's evaluation callback asks)."""
@@ -224,8 +235,11 @@ class TabularQAgent:
         SB3's ``learn``, counting episodes: ``callback`` (an SB3 callback or a list of them)
         is called at SB3's points, a rollout being the steps up to one at which an episode
         ends; ``reset_num_timesteps`` says whether the TensorBoard log starts a new run or
-        continues the last (the counters, which set ε, always go on); ``progress_bar`` counts
-        episodes. Each ended episode's return, and then ε, the states visited and the episodes,
+        continues the last (the counters, which set ε, always go on). As in SB3, the
+        environment is reset when ``reset_num_timesteps`` or on the first call; otherwise the
+        episodes go on from where the last call stopped. ``progress_bar`` counts episodes.
+        Each ended episode's return (the environment's own, before any reward scaling: the
+        ``VecMonitor``'s when there is one), and then ε, the states visited and the episodes,
         go to the TensorBoard log (``tensorboard_log``) at the step count.
         """
         if self.env is None:
@@ -236,8 +250,9 @@ class TabularQAgent:
         hooks = self._callback(callback, tb_log_name, reset_num_timesteps)
         target = self.episodes + total_episodes
         hooks.on_training_start(locals(), globals())
-        obs = env.reset()
-        running = np.zeros(env.num_envs)
+        if reset_num_timesteps or self._last_obs is None or self._returns is None:
+            self._last_obs, self._returns = env.reset(), np.zeros(env.num_envs)
+        obs, running = self._last_obs, self._returns
         hooks.on_rollout_start()
         with Progress(disable=not progress_bar) as bar:
             task = bar.add_task("tabular episodes", total=target, completed=self.episodes)
@@ -252,15 +267,15 @@ class TabularQAgent:
                     terminated[i] = not infos[i].get("TimeLimit.truncated", False)
                 self.update(obs, actions, rewards, final, terminated)
                 running += rewards
-                finished = [float(r) for r in running[dones]]
+                finished = [_episode_return(infos[i], running[i]) for i in np.flatnonzero(dones)]
                 running[dones] = 0.0
                 self.episodes += len(finished)
                 self._log(finished)
                 bar.update(task, completed=self.episodes)
                 hooks.update_locals(locals())
+                obs = self._last_obs = new_obs
                 if not hooks.on_step():
                     break
-                obs = new_obs
                 if finished:  # an episode ended: so does the rollout
                     hooks.on_rollout_end()
                     if self.episodes < target:

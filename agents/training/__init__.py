@@ -21,8 +21,8 @@ The output folder holds one run:
   rounded ``total_steps``, the checkpoints resumed from) and whether the run is ``complete``;
 - ``model.zip`` (SB3) or ``model.npz`` (tabular), the final model;
 - ``checkpoints/``, ``eval/evaluations.npz``, ``best/`` (:mod:`.records`);
-- ``tb/``: TensorBoard logs (SB3's own; the tabular agent logs each episode's return, ε and the
-  number of states visited, and the evaluations).
+- ``tb/``: TensorBoard logs (SB3's own; the tabular agent logs each episode's return, before
+  the learner's reward scaling, ε and the number of states visited, and the evaluations).
 
 Training is deterministic by seed: the same config and seed train the same model, bit for bit,
 on the same software; so does a run resumed from the same checkpoint.

@@ -122,7 +122,7 @@ class TrainPlan:
 
     @property
     def algorithm(self) -> Algorithm:
-        """The registry entry of the agent: its runner, model format and progress unit."""
+        """The registry entry of the agent: its class, model format and progress unit."""
         return ALGORITHMS[self.cfg.agent]
 
     @property

@@ -289,9 +289,10 @@ def run(plan: TrainPlan, progress: bool) -> Path:
             "agent": cfg.agent,
             "algorithm": algo.__name__,
             f"{algorithm.budget}_requested": plan.requested,
-            algorithm.budget: target,
+            # the tabular agent's budget field is also its counter (episodes, never rounded):
+            # there it says the episodes done, which _progress writes
+            **({} if algorithm.budget == algorithm.counter else {algorithm.budget: target}),
             "rounding": plan.rollout.describe() if plan.rollout is not None else None,
-            # the tabular agent's counter is its budget's name: from here, episodes done
             **_progress(model, algorithm),
         },
     )
