@@ -2,7 +2,8 @@
 
 It only mounts the command apps of the estimation problems (``qkf/<problem>/cli.py``:
 ``crlb``, ``bench``, ``plot``, ``study`` of transfer alignment; the ``gyros`` group; ``fuse``;
-``align``) and of the agents (``agents/cli.py``: ``train``, ``evaluate``, ``zoo``). The library
+``align``), ``judge`` (any problem, through the problem registry) and the agents' apps
+(``agents/cli.py``: ``train``, ``evaluate``, ``zoo``). The library
 never imports envs or agents; the agents' commands import them when they run (so ``torch`` is
 loaded only by the commands that use an agent). Exit codes: 0 success, 2 bad input (config,
 data, option), 130 interrupted (Ctrl-C: one line, ``interrupted``, on stderr), 1 anything else.
@@ -19,6 +20,7 @@ from agents.cli import app as agents_app
 from qkf.alignment.cli import app as alignment_app
 from qkf.cache_cli import app as cache_app
 from qkf.core.cli_support import interruptible, out
+from qkf.judge_cli import app as judge_app
 from qkf.redundant_gyros.cli import app as gyros_app
 from qkf.sca_fusion.cli import app as fusion_app
 from qkf.transfer_alignment.cli import app as transfer_alignment_app
@@ -70,6 +72,7 @@ app.add_typer(gyros_app, name="gyros", help="Redundant skewed gyros: FDI and UKF
 app.add_typer(fusion_app)
 app.add_typer(alignment_app)
 app.add_typer(cache_app, name="cache")
+app.add_typer(judge_app)
 
 
 def main() -> None:  # pragma: no cover - entry point

@@ -19,9 +19,9 @@ from scipy.spatial.transform import Rotation
 from qkf.core import units
 from qkf.core.config import ConfigError
 from qkf.transfer_alignment.config import Config, RandomEventParts, Scenario, load_config
-from qkf.transfer_alignment.families import FAMILIES as ALL_FAMILIES
 from qkf.transfer_alignment.methods.oracle import schedule
 from qkf.transfer_alignment.params import FilterParams
+from qkf.transfer_alignment.problem import FAMILIES as ALL_FAMILIES
 from qkf.transfer_alignment.scenario import (
     component_scenario,
     draw_events,

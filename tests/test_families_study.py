@@ -15,14 +15,10 @@ from typer.testing import CliRunner
 from qkf.cli import app
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.crlb import crlb
-from qkf.transfer_alignment.families import (
-    FAMILIES,
-    FAMILIES_COLUMNS,
-    FAMILY_METRICS,
-    seed_statistics,
-)
+from qkf.transfer_alignment.families import FAMILIES_COLUMNS, FAMILY_METRICS, seed_statistics
 from qkf.transfer_alignment.judging import state_weights, trial_scores
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
+from qkf.transfer_alignment.problem import FAMILIES
 from qkf.transfer_alignment.results import read_trials_csv
 from qkf.transfer_alignment.settled import SettledWindows
 from qkf.transfer_alignment.study import load_study

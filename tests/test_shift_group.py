@@ -13,8 +13,8 @@ import yaml
 from qkf.core.presets import preset_dir
 from qkf.transfer_alignment.adaptive import TUNING_SEEDS
 from qkf.transfer_alignment.config import Scenario, load_config
-from qkf.transfer_alignment.families import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.methods.on_mixture import TRAINING_MIXTURE, mixture_config
+from qkf.transfer_alignment.problem import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.scenario import draw_events, family_names, trial_streams
 from qkf.transfer_alignment.settled import opening_end_s
 

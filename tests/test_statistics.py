@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from qkf.cli import app
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
-from qkf.transfer_alignment.benchmark import paired_verdict
+from qkf.core.versus import paired_verdict
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, recovery_times
 
 runner = CliRunner()

@@ -20,8 +20,8 @@ from agents.zoo import load_entry
 from agents.zoo.entry import FamiliesJudge, ZooSpec, study_methods
 from qkf.cli import app
 from qkf.core.config import ConfigError, validate
-from qkf.transfer_alignment.families import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
+from qkf.transfer_alignment.problem import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.results import read_trials_csv
 
 runner = CliRunner()

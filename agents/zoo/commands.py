@@ -358,7 +358,7 @@ def evaluate_entry(
         write_summary(rows, dst / "zoo_summary.csv")
     if fam is not None:
         from qkf.core.campaign import case_folder
-        from qkf.transfer_alignment.families import SHIFT_FAMILIES
+        from qkf.transfer_alignment.problem import SHIFT_FAMILIES
 
         judged = [*fam.families, *(f for f in SHIFT_FAMILIES if f not in fam.families)]
         say(

@@ -68,8 +68,8 @@ REFERENCE = "kf-tuned"
 
 
 def study_families() -> list[str]:
-    """Every scenario family (``qkf.transfer_alignment.families.FAMILIES``), in table order."""
-    from qkf.transfer_alignment.families import FAMILIES
+    """Every scenario family (``qkf.transfer_alignment.problem.FAMILIES``), in table order."""
+    from qkf.transfer_alignment.problem import FAMILIES
 
     return list(FAMILIES)
 

@@ -30,6 +30,8 @@ class Environment:
     form; imported only when used, so the SB3 adapter costs no torch until it is asked for).
     ``check_scenario(scenario, overrides)``: the problems of a ``scenario:`` with its
     ``overrides``, one ``KEY: message`` line each (empty: it makes episodes).
+    ``policy_runner``: how a saved policy of the id runs as a method of its problem (the
+    ``policy:PATH`` method factories of :mod:`agents.policy_runner`).
     """
 
     id: str  # the Gymnasium id, "namespace/Name-vN"
@@ -42,6 +44,9 @@ class Environment:
     vector_entry_point: str | None = None  # its batched gymnasium.vector.VectorEnv, if any
     sb3_vec_env: str | None = None  # its batched SB3 VecEnv adapter, if any
     description: str = ""
+    # "module:function" running a κ policy over its problem's simulated episodes, if it has
+    # one: fn(policy, options, cfg, episodes) → the judged metric's square per episode
+    policy_runner: str | None = None
     defaults: tuple[tuple[str, Any], ...] = ()  # keyword defaults of the id (v4: controls)
     options: tuple[str, ...] = ()  # keywords a training config's env_kwargs may set
 

@@ -77,6 +77,7 @@ for _env_id, (_observation, _description) in VERSIONS.items():
             observation=_observation,
             vector_entry_point=VECTOR_ENTRY_POINT,
             sb3_vec_env=SB3_VEC_ENV,
+            policy_runner="envs.redundant_gyros.judging:run_policy",
             description=_description,
         )
     )

@@ -73,6 +73,13 @@ class Registry(Generic[T]):
 
         return add if obj is None else add(obj)
 
+    def register_spec(self, name: str, spec: str) -> None:
+        """Register the object that ``"module:attribute"`` names, imported on first use (an
+        entry a core module declares without importing the package that holds it)."""
+        if name in self._items:
+            raise RegistryError(f"{self.kind} {name!r} is registered twice")
+        self._items[name] = _LazyEntry(_Spec(spec))  # type: ignore[assignment]
+
     def known(self, name: str, what: str | None = None) -> str:
         """``name`` if it is registered, else ``ValueError`` listing the known names: the check
         of a config field that names an entry (a pydantic validator). ``what`` names the
@@ -129,3 +136,13 @@ class _LazyEntry:
 
     def __init__(self, ep: Any) -> None:
         self.ep = ep
+
+
+class _Spec:
+    """A ``module:attribute`` spec with an entry point's ``load`` and ``value``."""
+
+    def __init__(self, value: str) -> None:
+        self.value = value
+
+    def load(self) -> Any:
+        return load_object(self.value)

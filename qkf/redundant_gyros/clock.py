@@ -72,10 +72,15 @@ def grid_scores(ep: hs.Episode) -> np.ndarray:
 
 def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[Clock, float]:
     """The clock of the grid with the lowest mean ``J`` over the episodes of ``seeds``."""
+    return tune_on(cfg, [hs.episode(cfg, int(s)) for s in seeds])
+
+
+def tune_on(cfg: GyrosConfig, episodes: Sequence[hs.Episode]) -> tuple[Clock, float]:
+    """:func:`tune` on episodes drawn before."""
     kappas = np.asarray(cfg.environment.actions.values(), dtype=float)
-    mean = np.mean([grid_scores(hs.episode(cfg, int(s))) for s in seeds], axis=0)
+    mean = np.mean([grid_scores(ep) for ep in episodes], axis=0)
     s, a, c = np.unravel_index(int(np.argmin(mean)), mean.shape)
     return Clock(float(kappas[a]), float(kappas[c]), SWITCH_S[s]), float(mean[s, a, c])
 
 
-__all__ = ["SWITCH_S", "Clock", "grid_scores", "score", "tune"]
+__all__ = ["SWITCH_S", "Clock", "grid_scores", "score", "tune", "tune_on"]

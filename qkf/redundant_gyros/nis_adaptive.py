@@ -62,7 +62,12 @@ class EpisodeBatch:
 
     @classmethod
     def of(cls, cfg: GyrosConfig, seeds: Sequence[int]) -> EpisodeBatch:
-        eps = [hs.episode(cfg, int(s)) for s in seeds]
+        """The episodes of ``env.reset(seed=s)`` for each of ``seeds``."""
+        return cls.of_episodes(cfg, [hs.episode(cfg, int(s)) for s in seeds])
+
+    @classmethod
+    def of_episodes(cls, cfg: GyrosConfig, eps: Sequence[hs.Episode]) -> EpisodeBatch:
+        """Episodes drawn before, in one batched UKF."""
         ukf = BatchedUKF(EpisodeSampler(cfg), len(eps), eps[0].period)
         for row, e in enumerate(eps):
             ukf.load(row, e.inputs)
@@ -100,8 +105,12 @@ def run_rule_on(b: EpisodeBatch, rule: NisRule) -> np.ndarray:
 def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:
     """The grid point (:data:`GAINS` × :data:`HALF_LIVES` × the action set as starts) with the
     lowest mean ``J`` over the episodes ``seeds``, and that mean."""
-    kappas = np.asarray(cfg.environment.actions.values(), dtype=float)
-    batch = EpisodeBatch.of(cfg, seeds)
+    return tune_on(EpisodeBatch.of(cfg, seeds))
+
+
+def tune_on(batch: EpisodeBatch) -> tuple[NisRule, float]:
+    """:func:`tune` on episodes drawn before."""
+    kappas = np.asarray(batch.cfg.environment.actions.values(), dtype=float)
     best: tuple[NisRule, float] | None = None
     for gamma, halflife, k0 in itertools.product(GAINS, HALF_LIVES, kappas):
         rule = NisRule(gamma, halflife, float(k0))
@@ -112,4 +121,13 @@ def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:
     return best
 
 
-__all__ = ["GAINS", "HALF_LIVES", "EpisodeBatch", "NisRule", "run_rule", "run_rule_on", "tune"]
+__all__ = [
+    "GAINS",
+    "HALF_LIVES",
+    "EpisodeBatch",
+    "NisRule",
+    "run_rule",
+    "run_rule_on",
+    "tune",
+    "tune_on",
+]

@@ -30,9 +30,9 @@ from qkf.core.stats import (
     nees,
     per_trial_comparison,
     percentile_interval,
-    ratio_side,
     resample_counts,
 )
+from qkf.core.versus import paired_verdict
 from qkf.transfer_alignment.adaptive import TUNING_SEEDS, QkfConfig
 from qkf.transfer_alignment.chunk_cache import (
     cached_prepare,
@@ -638,17 +638,6 @@ class PairedRatio:
         both below 1, ``worse`` when both are above, ``unjudged`` with too few trials, else
         ``inconclusive`` (docs/methods.md, "Per-trial verdicts")."""
         return paired_verdict(self.lo, self.hi, self.median_lo, self.median_hi, self.judged)
-
-
-def paired_verdict(lo: float, hi: float, median_lo: float, median_hi: float, judged: bool) -> str:
-    """The verdict of a comparison from its two intervals (:attr:`PairedRatio.verdict`); an
-    interval that is not known (NaN) never supports a verdict."""
-    if not judged:
-        return "unjudged"
-    pooled, median = ratio_side(lo, hi), ratio_side(median_lo, median_hi)
-    if pooled == median != 0:
-        return "better" if pooled < 0 else "worse"
-    return "inconclusive"
 
 
 def baselines(cfg: Config, labels: list[str]) -> list[str]:

@@ -43,37 +43,10 @@ from qkf.core.stats import (
     percentile_interval,
     resample_counts,
 )
-from qkf.transfer_alignment.benchmark import paired_verdict
+from qkf.core.versus import VersusRow, paired_verdict
+from qkf.core.versus import versus_rows as generic_versus_rows
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.results import load_bench
-
-FAMILIES: tuple[str, ...] = (
-    "steady_random",
-    "thermal_snap_random",
-    "double_snap_random",
-    "small_snap_random",
-    "early_snap_random",
-    "thermal_drift_random",
-    "ads_mismatch_random",
-    "rotation_only_random",
-    "quiet_snap_random",
-    "threshold_snap_random",
-    "mixed_random",
-)
-"""The training families (presets of configs/transfer_alignment/), in table order: the ten
-that ``mixed_random`` draws from, then the mixture itself."""
-
-SHIFT_FAMILIES: tuple[str, ...] = (
-    "shift_late_snap_random",
-    "shift_ads_noise_random",
-    "shift_rotations_random",
-    "shift_prior_random",
-)
-"""The shift group (docs/models.md, "Shift group"): each changes the law of one thing a
-training family draws (jump times, ADS noise, rotation rates and durations, the calibration
-prior). Nothing trains or tunes on them: never in a training mixture, never a tuning run's
-scenario (``tests/test_shift_group.py``); ``qkf study families --shift`` judges them, the zoo's
-evaluation always does."""
 
 REFERENCE = "kf-tuned"
 """The method every ratio is taken against (the best constant κ, tuned with the truth)."""
@@ -199,29 +172,6 @@ def family_rows(
     return rows
 
 
-@dataclass(frozen=True)
-class VersusRow:
-    """``method`` against ``other`` on ``state_settled``: RMS ratio and paired interval."""
-
-    family: str
-    method: str
-    other: str
-    ratio: float
-    lo: float
-    hi: float
-    median: float = math.nan
-    median_lo: float = math.nan
-    median_hi: float = math.nan
-    p_improve: float = math.nan
-    worst_decile: float = math.nan
-    judged: bool = True
-
-    @property
-    def verdict(self) -> str:
-        """``better`` / ``worse`` / ``inconclusive`` / ``unjudged`` (both intervals)."""
-        return paired_verdict(self.lo, self.hi, self.median_lo, self.median_hi, self.judged)
-
-
 def versus_rows(
     family: str,
     values: dict[str, np.ndarray],
@@ -231,32 +181,13 @@ def versus_rows(
     seed: int,
 ) -> list[VersusRow]:
     """Each ``focus`` method (a policy, a method of one's own) against every other method of
-    the case on ``state_settled``, paired over the same resamples of trials: what a reviewer
-    asks of a learned policy (does it beat the clock, the tuned baselines; how far from the
-    hindsight bound)."""
+    the case on ``state_settled`` (``values``: the case's ``trials.csv``), paired over the same
+    resamples of trials (:func:`qkf.core.versus.versus_rows`): what a reviewer asks of a
+    learned policy (does it beat the clock, the tuned baselines; how far from the hindsight
+    bound)."""
     j = METRIC_COLUMNS.index(STATE_SETTLED)
-    n = next(iter(values.values())).shape[0]
-    counts = resample_counts(n, resamples, seed)
-    reps = {m: bootstrap_rms(v[:, j] ** 2, counts) for m, v in values.items()}
-    point = {m: float(np.sqrt(np.mean(v[:, j] ** 2))) for m, v in values.items()}
-    judged = n >= min_verdict_trials(level)
-    out = []
-    for m in focus:
-        if m not in values:
-            continue
-        for other in values:
-            if other == m:
-                continue
-            with np.errstate(divide="ignore", invalid="ignore"):
-                lo, hi = percentile_interval(reps[m] / reps[other], level)
-                ratio = point[m] / point[other]
-            per = per_trial_comparison(values[m][:, j], values[other][:, j], counts, level)
-            out.append(
-                VersusRow(family, m, other, ratio, float(lo), float(hi), float(per.median),
-                          float(per.median_lo), float(per.median_hi), float(per.p_improve),
-                          float(per.worst_decile), judged)
-            )  # fmt: skip
-    return out
+    errors = {m: v[:, j] for m, v in values.items()}
+    return generic_versus_rows(family, errors, focus, resamples, level, seed)
 
 
 def headroom(rows: Sequence[FamilyRow], family: str) -> tuple[float, float] | None:

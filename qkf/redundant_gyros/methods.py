@@ -1,0 +1,133 @@
+r"""The κ methods of the gyro calibration episodes, by name: what a gyro policy is judged against
+(docs/redundant_gyros.md, "Methods").
+
+A method schedules κ (the factor on the UKF's process noise) over one episode of the gyro
+environments and is scored by the hindsight's criterion ``J`` (:mod:`.hindsight`): the settled
+mean square of the four calibrated states over their prior sd. Its judged error per episode is
+``e = √J`` (dimensionless), so that RMS ratios over episodes are ``√(ΣJ_A / ΣJ_B)``.
+
+Every method is called as ``method(cfg, episodes, tuning)``: ``episodes`` the judged episodes
+(:func:`~.hindsight.episode`), ``tuning`` the episodes of the tuning seeds, which the tuned
+methods pick their settings on (the same for every method: the same budget of data), never the
+judged ones. It returns ``J`` per judged episode (``inf`` where the filter fails).
+
+=================== ======================================================================
+``constant``        the best constant κ of the action set on the tuning episodes
+``clock``           the tuned clock: κ_a, then κ_c from a switch time (:mod:`.clock`)
+``nis-adaptive``    innovation-based adaptive κ, its gain, half-life and start tuned
+                    (:mod:`.nis_adaptive`)
+``level-informed``  each episode's own best constant κ: knows the episode's noise levels
+                    (a bound, not a causal method)
+``hindsight``       each episode's best schedule found with the truth (:func:`~.hindsight.search`;
+                    a bound)
+=================== ======================================================================
+
+A method spec is ``NAME``, ``LABEL=NAME`` or ``FACTORY:ARG`` (``LABEL=FACTORY:ARG``): a
+factory of :data:`GYRO_METHOD_FACTORIES` makes the method from ``ARG``; ``agents`` declares
+``policy:PATH``, a saved gyro policy run in its environment (:mod:`agents.policy_runner`,
+entry-point group ``qkf.gyro_method_factories``), so this package never imports it.
+
+Adding one: a function of that signature, ``GYRO_METHODS.register(name, fn)``, or from another
+distribution the entry-point group ``qkf.gyro_methods``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from qkf.core.registry import Registry, RegistryError
+from qkf.redundant_gyros import clock, nis_adaptive
+from qkf.redundant_gyros import hindsight as hs
+from qkf.redundant_gyros.config import GyrosConfig
+
+GyroMethod = Callable[[GyrosConfig, Sequence[hs.Episode], Sequence[hs.Episode]], np.ndarray]
+"""``(cfg, judged episodes, tuning episodes) → J`` per judged episode."""
+
+GYRO_METHODS: Registry[GyroMethod] = Registry("gyro method", group="qkf.gyro_methods")
+"""The gyro methods by name (module docstring)."""
+
+GYRO_METHOD_FACTORIES: Registry[Callable[[str], GyroMethod]] = Registry(
+    "gyro method factory", group="qkf.gyro_method_factories"
+)
+"""``FACTORY:ARG`` specs: the factory called with ``ARG`` makes the method (module docstring)."""
+
+BOUNDS = ("level-informed", "hindsight")
+"""Methods that know the episode's truth: references for the headroom, never a baseline to
+beat."""
+
+
+@GYRO_METHODS.register("constant")
+def run_constant(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """The constant κ of the action set with the lowest mean ``J`` over ``tuning``."""
+    best = hs.best_constant(np.stack([hs.constant_scores(ep) for ep in tuning]))
+    return np.array([hs.constant_scores(ep)[best] for ep in episodes])
+
+
+@GYRO_METHODS.register("clock")
+def run_clock(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """The clock of :mod:`.clock`'s grid with the lowest mean ``J`` over ``tuning``."""
+    tuned, _ = clock.tune_on(cfg, tuning)
+    return np.array([clock.score(ep, tuned) for ep in episodes])
+
+
+@GYRO_METHODS.register("nis-adaptive")
+def run_nis_adaptive(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """The innovation-based rule of :mod:`.nis_adaptive`'s grid best over ``tuning``."""
+    rule, _ = nis_adaptive.tune_on(nis_adaptive.EpisodeBatch.of_episodes(cfg, tuning))
+    return nis_adaptive.run_rule_on(nis_adaptive.EpisodeBatch.of_episodes(cfg, episodes), rule)
+
+
+@GYRO_METHODS.register("level-informed")
+def run_level_informed(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """Each episode's own best constant κ (a bound: it knows the episode's levels)."""
+    return np.array([float(np.min(hs.constant_scores(ep))) for ep in episodes])
+
+
+@GYRO_METHODS.register("hindsight")
+def run_hindsight(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """Each episode's best schedule found with its truth (a bound)."""
+    return np.array([hs.search(ep).score for ep in episodes])
+
+
+def resolve_gyro_method(spec: str) -> tuple[str, GyroMethod]:
+    """``(label, method)`` of a method spec (module docstring); ``ValueError`` naming the spec
+    and the known names for one that cannot be resolved. A factory's method may offer a
+    ``default_label`` (a policy: its folder's name)."""
+    label, sep, target = (part.strip() for part in spec.strip().partition("="))
+    if not sep:
+        label, target = "", spec.strip()
+    if sep and not label:
+        raise ValueError(f"{spec!r}: empty label before '='")
+    name, colon, arg = target.partition(":")
+    try:
+        method = GYRO_METHOD_FACTORIES[name](arg) if colon else GYRO_METHODS[target]
+    except RegistryError as exc:
+        raise ValueError(f"{spec!r}: {exc}") from None
+    default = getattr(method, "default_label", None)
+    return label or (default if isinstance(default, str) else target), method
+
+
+__all__ = [
+    "BOUNDS",
+    "GYRO_METHODS",
+    "GYRO_METHOD_FACTORIES",
+    "GyroMethod",
+    "resolve_gyro_method",
+    "run_clock",
+    "run_constant",
+    "run_hindsight",
+    "run_level_informed",
+    "run_nis_adaptive",
+]

@@ -1,0 +1,137 @@
+"""The redundant-gyro calibration episodes as a :class:`~qkf.core.problem.Problem`: what the
+experiments layer (judging κ policies and methods over the gyro families) needs of it.
+
+A trial is one episode of the gyro environments: trial ``t`` of benchmark seed ``s`` is the
+episode of ``env.reset(seed=s + t)`` (:func:`~.hindsight.episode`), so a policy run in the
+environment and a method run here see the same readings. Its judged error is ``√J``
+(:mod:`.methods`). Judging seeds start at 5,000,000, beyond the seeds the training configs draw
+their episodes from and the tuning seeds; the tuned methods tune on the first
+:data:`TUNING_EPISODES` episodes of the tuning range.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qkf.core.config import ConfigError
+from qkf.core.problem import Families, JudgedMetric, SeedRanges
+from qkf.core.registry import Registry
+from qkf.redundant_gyros.config import MAX_CHUNK_TRIAL_EPOCHS, MAX_TRIALS, epochs_of
+
+FAMILIES: tuple[str, ...] = ("gyro_noise_levels", "five_gyros_onset_drift")
+"""The gyro families with a change (presets of configs/redundant_gyros/; docs/redundant_gyros.md,
+"Gyro families")."""
+CONTROL_FAMILIES: tuple[str, ...] = ("gyro_control",)
+"""Nothing changes: constant coefficients, the assumed noise."""
+SHIFT_FAMILIES: tuple[str, ...] = ("gyro_shift_noise_levels",)
+"""Never trained or tuned on: noise levels beyond the training family's."""
+
+ENV_IDS: tuple[str, ...] = (
+    "qkf/RedundantGyroCalibration-v0",
+    "qkf/RedundantGyroCalibration-v1",
+    "qkf/RedundantGyroCalibration-v2",
+    "qkf/RedundantGyroCalibration-v3",
+)
+"""The environments of this problem (``envs.redundant_gyros`` registers them)."""
+
+TUNING_EPISODES = 16
+"""Episodes the tuned methods tune on (the first of the tuning seeds; every tuned method the
+same)."""
+
+
+class RedundantGyros:
+    """The gyro calibration episodes (docs/redundant_gyros.md)."""
+
+    name = "redundant_gyros"
+    description = "κ of the UKF calibrating one of a redundant, skewed gyro unit's gyros"
+    env_ids = ENV_IDS
+    families = Families(judged=FAMILIES, control=CONTROL_FAMILIES, shift=SHIFT_FAMILIES)
+    metric = JudgedMetric(
+        "rms_settled",
+        "√J: the settled RMS of the four calibrated states over their prior sd (dimensionless)",
+    )
+    seeds = SeedRanges(judging=(5_000_000, 6_000_000), tuning=(1_000_000, 2_000_000))
+    max_trials = MAX_TRIALS
+
+    @property
+    def methods(self) -> Registry[Any]:
+        """:data:`qkf.redundant_gyros.methods.GYRO_METHODS`."""
+        from qkf.redundant_gyros.methods import GYRO_METHODS
+
+        return GYRO_METHODS
+
+    def load_config(self, source: str | Path | None, overrides: Sequence[str] = ()) -> Any:
+        """:func:`qkf.redundant_gyros.load_config`."""
+        from qkf.redundant_gyros import load_config
+
+        return load_config(source, list(overrides))
+
+    def simulate(self, cfg: Any, seed: int, trials: Sequence[int]) -> Any:
+        """The episodes (:class:`~.hindsight.Episode`) of environment seeds ``seed + t``."""
+        from qkf.redundant_gyros.hindsight import episode
+
+        return [episode(cfg, seed + int(t)) for t in trials]
+
+    def tuning(self, cfg: Any) -> Any:
+        """The episodes the tuned methods tune on."""
+        return self.simulate(cfg, self.seeds.tuning[0], range(TUNING_EPISODES))
+
+    def check_workload(self, cfg: Any, trials: int) -> None:
+        """``ConfigError`` if ``trials`` episodes, all held at once, exceed
+        :data:`~.config.MAX_CHUNK_TRIAL_EPOCHS` trial-epochs."""
+        epochs = epochs_of(cfg.scenario.duration_s, cfg.scenario.dt_s)
+        if trials * epochs > MAX_CHUNK_TRIAL_EPOCHS:
+            raise ConfigError(
+                f"trials × epochs (scenario.duration_s / scenario.dt_s) = {trials:,} × "
+                f"{epochs:,} = {trials * epochs:.3g} trial-epochs, all held at once; at most "
+                f"{MAX_CHUNK_TRIAL_EPOCHS:.0e}: judge {MAX_CHUNK_TRIAL_EPOCHS // epochs:,} "
+                "trials or fewer"
+            )
+
+    def method_labels(self, specs: Sequence[str]) -> list[str]:
+        """The labels of :func:`~qkf.redundant_gyros.methods.resolve_gyro_method`."""
+        from qkf.redundant_gyros.methods import resolve_gyro_method
+
+        labels = [resolve_gyro_method(s)[0] for s in specs]
+        twice = sorted({x for x in labels if labels.count(x) > 1})
+        if twice:
+            raise ValueError(f"{', '.join(twice)}: the same label twice (use LABEL=SPEC)")
+        return labels
+
+    def trial_errors(
+        self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
+    ) -> dict[str, np.ndarray]:
+        """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
+        ones tuned on :meth:`tuning`'s episodes."""
+        from qkf.core.montecarlo import progress_bar
+        from qkf.redundant_gyros.methods import resolve_gyro_method
+
+        methods = [resolve_gyro_method(s) for s in specs]
+        self.method_labels(specs)
+        episodes = self.simulate(cfg, seed, range(trials))
+        tuning = self.tuning(cfg)
+        out = {}
+        with progress_bar(len(methods), "gyro methods", progress, unit="methods") as bar:
+            for label, method in methods:
+                bar.note(label)
+                out[label] = np.sqrt(np.asarray(method(cfg, episodes, tuning), dtype=float))
+                bar()
+        return out
+
+
+PROBLEM = RedundantGyros()
+"""Registered as ``redundant_gyros`` in :data:`qkf.core.problem.PROBLEMS`."""
+
+__all__ = [
+    "CONTROL_FAMILIES",
+    "ENV_IDS",
+    "FAMILIES",
+    "PROBLEM",
+    "SHIFT_FAMILIES",
+    "TUNING_EPISODES",
+    "RedundantGyros",
+]

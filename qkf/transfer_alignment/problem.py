@@ -1,0 +1,124 @@
+"""Transfer alignment as a :class:`~qkf.core.problem.Problem`: what the experiments layer (the
+zoo, policy evaluation, the families judging) needs of it, without importing its modules.
+
+The families live here, the facts sheet of the problem; the methods, the simulation and the
+workload check are imported on first use, so that reading the problem stays cheap.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qkf.core.problem import Families, JudgedMetric, SeedRanges
+from qkf.core.registry import Registry
+from qkf.transfer_alignment.adaptive import MAX_TRIALS, TUNING_SEEDS
+
+FAMILIES: tuple[str, ...] = (
+    "steady_random",
+    "thermal_snap_random",
+    "double_snap_random",
+    "small_snap_random",
+    "early_snap_random",
+    "thermal_drift_random",
+    "ads_mismatch_random",
+    "rotation_only_random",
+    "quiet_snap_random",
+    "threshold_snap_random",
+    "mixed_random",
+)
+"""The training families (presets of configs/transfer_alignment/), in table order: the ten
+that ``mixed_random`` draws from, then the mixture itself."""
+
+SHIFT_FAMILIES: tuple[str, ...] = (
+    "shift_late_snap_random",
+    "shift_ads_noise_random",
+    "shift_rotations_random",
+    "shift_prior_random",
+)
+"""The shift group (docs/models.md, "Shift group"): each changes the law of one thing a
+training family draws (jump times, ADS noise, rotation rates and durations, the calibration
+prior). Nothing trains or tunes on them: never in a training mixture, never a tuning run's
+scenario (``tests/test_shift_group.py``); ``qkf study families --shift`` judges them, the zoo's
+evaluation always does."""
+
+ENV_IDS: tuple[str, ...] = (
+    "qkf/TransferAlignment-v0",
+    "qkf/TransferAlignment-v1",
+    "qkf/TransferAlignment-v2",
+    "qkf/TransferAlignment-v3",
+    "qkf/TransferAlignmentTimed-v3",
+    "qkf/TransferAlignment-v4",
+)
+"""The environments of this problem (``envs.transfer_alignment`` registers them)."""
+
+
+class TransferAlignment:
+    """The transfer-alignment problem (docs/models.md)."""
+
+    name = "transfer_alignment"
+    description = "in-orbit calibration of gyros against a master's attitude reference"
+    env_ids = ENV_IDS
+    families = Families(
+        judged=FAMILIES, control=("steady_random",), shift=SHIFT_FAMILIES, mixture="mixed_random"
+    )
+    metric = JudgedMetric(
+        "state_settled",
+        "the whole state's settled error, each state in units of its final nominal CRLB "
+        "(dimensionless)",
+    )
+    # docs/environment.md, "Seed ranges": judging below the tuning seeds
+    seeds = SeedRanges(judging=(0, TUNING_SEEDS[0]), tuning=TUNING_SEEDS)
+    max_trials = MAX_TRIALS
+
+    @property
+    def methods(self) -> Registry[Any]:
+        """``qkf.transfer_alignment.methods.METHODS``."""
+        from qkf.transfer_alignment.methods import METHODS
+
+        return METHODS
+
+    def load_config(self, source: str | Path | None, overrides: Sequence[str] = ()) -> Any:
+        """:func:`qkf.transfer_alignment.config.load_config`."""
+        from qkf.transfer_alignment.config import load_config
+
+        return load_config(source, list(overrides))
+
+    def simulate(self, cfg: Any, seed: int, trials: Sequence[int]) -> Any:
+        """:func:`qkf.transfer_alignment.scenario.simulate`: a ``ScenarioData``."""
+        from qkf.transfer_alignment.scenario import simulate
+
+        return simulate(cfg, seed, list(trials))
+
+    def check_workload(self, cfg: Any, trials: int) -> None:
+        """:func:`qkf.transfer_alignment.config.check_workload`."""
+        from qkf.transfer_alignment.config import check_workload
+
+        check_workload(cfg, trials)
+
+    def method_labels(self, specs: Sequence[str]) -> list[str]:
+        """:func:`~qkf.transfer_alignment.benchmark.parse_methods`' names."""
+        from qkf.transfer_alignment.benchmark import parse_methods
+
+        return [m.name for m in parse_methods(list(specs))]
+
+    def trial_errors(
+        self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
+    ) -> dict[str, np.ndarray]:
+        """``state_settled`` per trial of each method of a
+        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run."""
+        from qkf.transfer_alignment.benchmark import run_benchmark
+        from qkf.transfer_alignment.metrics import METRIC_COLUMNS
+
+        res = run_benchmark(cfg, list(specs), trials, seed, progress=progress)
+        j = METRIC_COLUMNS.index(self.metric.name)
+        return {m.name: np.asarray(m.trial_values)[:, j] for m in res.methods}
+
+
+PROBLEM = TransferAlignment()
+"""Registered as ``transfer_alignment`` in :data:`qkf.core.problem.PROBLEMS`."""
+
+__all__ = ["ENV_IDS", "FAMILIES", "PROBLEM", "SHIFT_FAMILIES", "TransferAlignment"]
