@@ -4,5 +4,5 @@ The algorithms by name (:mod:`.algorithms`: tabular Q-learning and the Stable-Ba
 agents), their training (:mod:`.training`, :mod:`.config`), a saved agent as a benchmark method
 (:mod:`.policy`, ``--methods policy:PATH``), the zoo of shipped policies (:mod:`.zoo`) and the
 commands ``qkf train``, ``evaluate`` and ``zoo`` (:mod:`.cli`). The baselines an agent is judged
-against are the methods of :mod:`qkf.transfer_alignment.methods`, not policies of this package.
+against are its problem's methods (``qkf.core.problem.PROBLEMS``), not policies of this package.
 """
