@@ -1,17 +1,16 @@
-"""A saved agent as a κ policy, and as a benchmark method: ``--methods policy:PATH``.
+"""A saved agent as a κ policy, and as a method of its problem: ``--methods policy:PATH``.
 
-``policy:PATH`` is resolved through the method-factory registry of
-:mod:`qkf.transfer_alignment.methods` (entry-point group ``qkf.method_factories``, declared in
+``policy:PATH`` is resolved through a problem's method-factory registry (transfer alignment's
+``qkf.method_factories``, the gyros' ``qkf.gyro_method_factories``, declared in
 ``pyproject.toml``), so ``qkf`` itself never imports this package. The model's settings (which
 agent, environment, action type, decision period and frame stack) come from the
 ``config.yaml`` that ``qkf train`` wrote beside it, from an RL Zoo3 run's own records, or, for a
 bare Stable-Baselines3 zip, from ``policy:PATH@ENV_ID`` and the zip itself
 (:mod:`agents.policy_sources`).
 
-The policy sees its environment's observation (the batched episodes of
-:mod:`envs.transfer_alignment.episodes`, with the observation version of the id it was trained
-on, from :data:`envs.ENVIRONMENTS`) every decision period and its action sets κ for the next
-period; everything else is the filter of every other method, run on the same simulated trials.
+How the policy runs over its problem's simulated data is its environment's: the environment
+registry's ``policy_runner`` (:data:`envs.ENVIRONMENTS`), called with the environment options it
+was trained with; this module names no problem and no environment but through the registries.
 """
 
 from __future__ import annotations
@@ -30,15 +29,9 @@ from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.config import TrainConfig
 from agents.policy_sources import policy_config, saved_spaces, settings_files, split_spec
 from envs import ENVIRONMENTS
-from envs.common import ActionMap
-from envs.transfer_alignment import BatchedEpisodes, EpisodeDriver
 from qkf.core.config import ConfigError
+from qkf.core.registry import load_object
 from qkf.core.results_cache import code_fingerprint
-from qkf.transfer_alignment.config import Config
-from qkf.transfer_alignment.methods.base import MethodOutput, per_epoch
-from qkf.transfer_alignment.methods.moves_schedule import MoveSchedule, run_moves
-from qkf.transfer_alignment.methods.oracle import run_schedule
-from qkf.transfer_alignment.scenario import ScenarioData
 
 
 class Policy:
@@ -96,100 +89,6 @@ class Policy:
         return np.asarray(action)
 
 
-def run_policy(cfg: Config, data: ScenarioData, path: str) -> MethodOutput:
-    """Filter the trials with κ chosen by the saved policy at ``path``."""
-    policy = Policy(path)
-    values = np.asarray(cfg.adaptive.actions.values())
-    if (
-        policy.path.suffix == ".zip"
-        and policy.cfg.action_type == "discrete"
-        and "controls" not in ENVIRONMENTS[policy.cfg.env].options
-    ):
-        _, _, n = saved_spaces(policy.path)
-        if n is not None and n != values.size:
-            raise ConfigError(
-                f"{path}: chooses among {n} actions, but the config's action set "
-                f"(adaptive.actions) has {values.size}: a policy trained on another action set"
-            )
-    actions = ActionMap(values, policy.cfg.action_type)
-    env = ENVIRONMENTS[policy.cfg.env]
-    if env.problem != "transfer_alignment" or env.observation is None:
-        raise ConfigError(
-            f"{path}: trained on {policy.cfg.env}, not a transfer-alignment environment"
-        )
-    observation = env.observation
-    env_kwargs = {**env.kwargs, **dict(getattr(policy.cfg, "env_kwargs", {}) or {})}
-    if env_kwargs.get("controls") is not None:  # v4: the policy makes the filter's moves
-        return _run_moves_policy(cfg, data, policy, path, observation, env_kwargs)
-    core = BatchedEpisodes(
-        cfg, data.n_trials, "likelihood", policy.cfg.period_s, observation=observation
-    )
-    obs = core.load(data)
-    policy.reset(data.n_trials)
-    est = np.full((data.n_trials, data.n_epochs, 16), np.nan)
-    kappa_log = []
-    for k0 in range(0, data.n_epochs, core.period):
-        mapped = [actions(a) for a in policy.act(obs)]
-        kappa = np.array([m[0] for m in mapped])
-        kappa_log.append(kappa)
-        out = core.step(kappa, np.array([m[1] for m in mapped]))
-        k1 = min(data.n_epochs, k0 + core.period)
-        est[:, k0:k1] = out.est[:, : k1 - k0]
-        obs = out.obs
-    kappa = per_epoch(np.stack(kappa_log, axis=1), core.period, data.n_epochs)
-    # the covariance the policy's filter believes, for NEES: the filter is deterministic given
-    # its κ per epoch, so replaying that schedule reproduces it (same estimates, tested), and
-    # the episode machinery need not record covariances at the sampled epochs itself
-    replay = run_schedule(cfg, data, kappa)
-    return MethodOutput(
-        est=est,
-        diverged=core.kf.diverged.copy(),
-        kappa=kappa,
-        notes={"policy": f"{policy.cfg.agent} policy from {path}"},
-        cov=replay.cov,
-        var=replay.var,
-        innov=replay.innov,
-        nis=replay.nis,
-    )
-
-
-def _run_moves_policy(
-    cfg: Config,
-    data: ScenarioData,
-    policy: Policy,
-    path: str,
-    observation: str,
-    env_kwargs: dict[str, Any],
-) -> MethodOutput:
-    """A v4 policy: its actions are moves of the environment's ``controls`` (a residual's on
-    top of its ``base`` rule), made in the same episodes as in training; the output is
-    :func:`~qkf.transfer_alignment.methods.moves_schedule.run_moves` of the moves it made
-    (the same filter run, so the same estimates, with the covariance recorded)."""
-    driver = EpisodeDriver(
-        data.n_trials, cfg, policy.cfg.action_type, "oracle", None, policy.cfg.period_s,
-        observation, controls=env_kwargs["controls"], base=env_kwargs.get("base"),
-    )  # fmt: skip
-    assert driver.controls is not None
-    n = data.n_trials
-    obs = driver.core.load(data)
-    driver.restart_base(np.arange(n))
-    policy.reset(n)
-    made = []
-    for _ in range(0, data.n_epochs, driver.core.period):
-        moves = driver.controls.moves(policy.act(obs), n, driver.base_moves)
-        made.append(moves)
-        obs = driver.step_moves(moves).obs
-    schedule = MoveSchedule.from_moves(driver.core.period, made)
-    out = run_moves(cfg, data, schedule)
-    out.diverged = out.diverged | driver.core.kf.diverged
-    base = env_kwargs.get("base")
-    out.notes["policy"] = (
-        f"{policy.cfg.agent} policy from {path}: controls {env_kwargs['controls']}"
-        + (f" on base {base}" if base else "")
-    )
-    return out
-
-
 @dataclass(frozen=True)
 class PolicyMethod:
     """``policy:PATH`` as a method (picklable: it carries only the path)."""
@@ -202,7 +101,9 @@ class PolicyMethod:
         p = Path(split_spec(self.path)[0])
         return f"policy:{p.parent.name if p.stem == 'model' and p.parent.name else p.stem}"
 
-    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+    def __call__(self, cfg: Any, data: Any, *rest: Any) -> Any:
+        """The policy over ``data`` of ``cfg`` (its problem's method arguments; any further ones,
+        such as the gyro methods' tuning episodes, are not used: a policy is not tuned)."""
         return run_policy(cfg, data, self.path)
 
     def cache_token(self) -> dict[str, Any]:
@@ -252,8 +153,51 @@ def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
         )
 
 
-def policy_method(path: str) -> PolicyMethod:
-    """Method factory of ``policy:PATH``; loads the model once before any trial runs, so a
-    missing, corrupt or foreign file is refused up front (``ValueError``/``OSError``)."""
-    Policy(path)
-    return PolicyMethod(path)
+def run_policy(cfg: Any, data: Any, path: str) -> Any:
+    """The saved policy at ``path`` as a method of its problem on ``data`` of ``cfg``: its
+    environment's ``policy_runner`` with the options it was trained with (``ConfigError`` when
+    the policy does not fit the config, e.g. another action set)."""
+    policy = Policy(path)
+    spec = ENVIRONMENTS[policy.cfg.env]
+    if spec.policy_runner is None:
+        raise ConfigError(f"{path}: trained on {policy.cfg.env}, which has no policy_runner")
+    options = {
+        "action_type": policy.cfg.action_type,
+        "period_s": policy.cfg.period_s,
+        **spec.kwargs,
+        **dict(getattr(policy.cfg, "env_kwargs", {}) or {}),
+    }
+    n_actions = None
+    if policy.path.suffix == ".zip" and policy.cfg.action_type == "discrete":
+        n_actions = saved_spaces(policy.path)[2]
+    runner = load_object(spec.policy_runner)
+    describe = f"{policy.cfg.agent} policy from {path}"
+    try:
+        return runner(policy, options, cfg, data, n_actions, describe)
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class PolicyFactory:
+    """The ``policy:PATH`` method factory of one problem (its registry's entry point): loads
+    the model once before any trial runs, so a missing, corrupt or foreign file is refused up
+    front (``ConfigError``), as is a policy trained on another problem's environment."""
+
+    problem: str
+
+    def __call__(self, path: str) -> PolicyMethod:
+        policy = Policy(path)
+        spec = ENVIRONMENTS[policy.cfg.env]
+        if spec.problem != self.problem or spec.policy_runner is None:
+            raise ConfigError(
+                f"{path}: trained on {policy.cfg.env}, not a {self.problem.replace('_', '-')} "
+                "environment"
+            )
+        return PolicyMethod(path)
+
+
+policy_method = PolicyFactory("transfer_alignment")
+"""``policy:PATH`` of transfer alignment (entry point ``qkf.method_factories``)."""
+episode_policy_method = PolicyFactory("redundant_gyros")
+"""``policy:PATH`` of the redundant-gyro episodes (entry point ``qkf.gyro_method_factories``)."""

@@ -91,11 +91,10 @@ def test_no_problem_package_imports_another_and_the_core_none() -> None:
 
 DIRECT_PROBLEM_IMPORTS = {
     # still written for transfer alignment alone (docs/architecture.md, "The problem
-    # registry"): its policy:PATH, the v4 expert's datasets, qkf evaluate and the zoo, which
-    # runs qkf study families; a module ported to the registries leaves this list
+    # registry"): the v4 expert's datasets, qkf evaluate and the zoo, which runs qkf study
+    # families; a module ported to the registries leaves this list
     "agents/cli.py",
     "agents/datasets.py",
-    "agents/policy.py",
     "agents/zoo/commands.py",
     "agents/zoo/entry.py",
     "agents/zoo/summary.py",

@@ -179,7 +179,7 @@ def test_a_gyro_policy_judged_on_loaded_episodes_is_the_policy_in_its_environmen
     np.testing.assert_allclose(j, total / ((core.n_steps - settled) * 4.0), rtol=1e-12)
     assert len(chosen) > 1  # the policy does change κ: the observations matter
     ta_policy = Path(__file__).resolve().parents[1] / "agents" / "zoo" / "best" / "model.zip"
-    with pytest.raises(ConfigError, match="whose policies do not run over this problem"):
+    with pytest.raises(ConfigError, match="not a redundant-gyros environment"):
         resolve_gyro_method(f"policy:{ta_policy}")  # the shipped transfer-alignment policy
 
 

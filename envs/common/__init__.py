@@ -3,7 +3,7 @@ reward, rendering, scenario checks and the environment registry."""
 
 from envs.common.actions import ACTION_TYPES, ActionMap
 from envs.common.bounds import DIVERGENCE_REWARD, OBS_LIMIT, finite_clipped, observation_box
-from envs.common.registry import ENVIRONMENTS, Environment, register_environment
+from envs.common.registry import ENVIRONMENTS, ActingPolicy, Environment, register_environment
 from envs.common.render import (
     FRAME_HEIGHT_PX,
     FRAME_WIDTH_PX,
@@ -23,6 +23,7 @@ __all__ = [
     "OBS_LIMIT",
     "RENDER_FPS",
     "RENDER_MODES",
+    "ActingPolicy",
     "ActionMap",
     "Environment",
     "EpisodeTrace",

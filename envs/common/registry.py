@@ -14,12 +14,22 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
+import numpy as np
 from gymnasium.envs.registration import register
 from gymnasium.envs.registration import registry as gym_registry
 
 from qkf.core.registry import Registry
+
+
+class ActingPolicy(Protocol):
+    """What an environment's ``policy_runner`` needs of a saved policy: start ``n`` episodes,
+    then its greedy actions for their newest observations (n, size)."""
+
+    def reset(self, n: int) -> None: ...
+
+    def act(self, obs: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -30,8 +40,12 @@ class Environment:
     form; imported only when used, so the SB3 adapter costs no torch until it is asked for).
     ``check_scenario(scenario, overrides)``: the problems of a ``scenario:`` with its
     ``overrides``, one ``KEY: message`` line each (empty: it makes episodes).
-    ``policy_runner``: how a saved policy of the id runs as a method of its problem (the
-    ``policy:PATH`` method factories of :mod:`agents.policy_runner`).
+    ``policy_runner``: how a saved policy of the id runs as a method of its problem, on that
+    problem's simulated data (``policy:PATH``, :mod:`agents.policy`): called with the policy
+    (:class:`ActingPolicy`), the environment options it was trained with (``observation``,
+    ``action_type``, ``period_s``, the id's defaults and its ``env_kwargs``), the problem's
+    config and data, the policy's number of discrete actions if known, and a description for
+    the output's notes; ``ValueError`` when the policy does not fit the config.
     """
 
     id: str  # the Gymnasium id, "namespace/Name-vN"
@@ -44,8 +58,8 @@ class Environment:
     vector_entry_point: str | None = None  # its batched gymnasium.vector.VectorEnv, if any
     sb3_vec_env: str | None = None  # its batched SB3 VecEnv adapter, if any
     description: str = ""
-    # "module:function" running a κ policy over its problem's simulated episodes, if it has
-    # one: fn(policy, options, cfg, episodes) → the judged metric's square per episode
+    # "module:function" running a saved policy as a method of its problem, if it has one:
+    # fn(policy, options, cfg, data, n_actions, describe) → that problem's method output
     policy_runner: str | None = None
     defaults: tuple[tuple[str, Any], ...] = ()  # keyword defaults of the id (v4: controls)
     options: tuple[str, ...] = ()  # keywords a training config's env_kwargs may set

@@ -13,21 +13,14 @@ gyro ids' ``policy_runner``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
+from envs.common import ActingPolicy
 from envs.redundant_gyros.episodes import GyroEpisodes
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.hindsight import Episode
-
-
-class ActingPolicy(Protocol):
-    """What the runner needs of a policy: start ``n`` episodes, then greedy actions."""
-
-    def reset(self, n: int) -> None: ...
-
-    def act(self, obs: np.ndarray) -> np.ndarray: ...
 
 
 def run_policy(
@@ -36,12 +29,13 @@ def run_policy(
     cfg: GyrosConfig,
     episodes: Sequence[Episode],
     n_actions: int | None = None,
+    describe: str = "policy",
 ) -> np.ndarray:
     """``J`` per episode (``inf`` where the filter fails) of ``policy`` acting in the gyro
     environment built with ``options`` (``GyroEpisodes``' keywords) over ``episodes`` of
     ``cfg``. ``TypeError`` for another problem's config or episodes; ``ValueError`` when the
     policy chooses among ``n_actions`` discrete actions and the config's action set has
-    another number."""
+    another number. ``describe`` is not used (the output is a number per episode)."""
     if not isinstance(cfg, GyrosConfig) or not all(isinstance(e, Episode) for e in episodes):
         raise TypeError("a gyro policy runs over gyro episodes of a gyro config only")
     n = len(episodes)
@@ -69,4 +63,4 @@ def run_policy(
     return np.where(env.failed, np.inf, j)
 
 
-__all__ = ["ActingPolicy", "run_policy"]
+__all__ = ["run_policy"]

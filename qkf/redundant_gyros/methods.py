@@ -24,7 +24,7 @@ judged ones. It returns ``J`` per judged episode (``inf`` where the filter fails
 
 A method spec is ``NAME``, ``LABEL=NAME`` or ``FACTORY:ARG`` (``LABEL=FACTORY:ARG``): a
 factory of :data:`GYRO_METHOD_FACTORIES` makes the method from ``ARG``; ``agents`` declares
-``policy:PATH``, a saved gyro policy run in its environment (:mod:`agents.policy_runner`,
+``policy:PATH``, a saved gyro policy run in its environment (:mod:`agents.policy`,
 entry-point group ``qkf.gyro_method_factories``), so this package never imports it.
 
 Adding one: a function of that signature, ``GYRO_METHODS.register(name, fn)``, or from another
