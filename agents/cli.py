@@ -116,6 +116,7 @@ def evaluate_cmd(
     """Filter Monte Carlo trials with the policy's κ beside kf (and kf-tuned when its tuning
     is in the results cache: docs/caching.md); writes the files of ``qkf bench``."""
     from agents.policy import Policy
+    from qkf.core.problem import problem_of_env
     from qkf.core.results_cache import cache_enabled
     from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
     from qkf.transfer_alignment.chunk_cache import preparation_cached
@@ -131,6 +132,13 @@ def evaluate_cmd(
     seed_option(seed)
     try:
         policy = Policy(model)
+        problem = problem_of_env(policy.cfg.env)
+        if problem.name != "transfer_alignment":  # qkf bench's files are transfer alignment's
+            raise ConfigError(
+                f"{model}: a policy of {policy.cfg.env} ({problem.name}); qkf evaluate writes "
+                f"transfer alignment's bench. Judge it with: qkf judge {problem.name} --methods "
+                f"{','.join(problem.methods.names()[:2])},policy:{model} --out DIR"
+            )
         cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
         # kf beside the policy, and kf-tuned where its tuning is cached: a table that reads on
         # its own without a tuning run

@@ -235,3 +235,28 @@ def test_qkf_judge_gyros_writes_tables_recomputed_from_its_trials(tmp_path: Path
                               str(bad), "--no-progress"])  # fmt: skip
     assert res.exit_code == 2 and "unknown gyro method 'kf'" in res.output
     assert not bad.exists()
+
+
+def test_a_gyro_policy_saved_by_training_is_judged_and_evaluate_points_to_judge(
+    tmp_path: Path,
+) -> None:
+    bare = Path(_bare_gyro_policy(tmp_path).split("@")[0])
+    run = tmp_path / "gyro_run"
+    run.mkdir()
+    bare.rename(run / "model.zip")
+    (run / "config.yaml").write_text(
+        "agent: ppo\nenv: qkf/RedundantGyroCalibration-v3\nscenario: gyro_noise_levels\n"
+        "action_type: discrete\nreward: mean_square\nperiod_s: 10\n"
+    )
+    res = runner.invoke(app, ["evaluate", str(run / "model.zip"), "--out", str(tmp_path / "e")])
+    assert res.exit_code == 2 and "qkf judge redundant_gyros" in res.output
+    assert not (tmp_path / "e").exists()
+    out = tmp_path / "judged"
+    res = runner.invoke(app, ["judge", "redundant_gyros", "--methods",
+                              f"constant,policy:{run / 'model.zip'}", "--families", "gyro_control",
+                              "--trials", "4", "--out", str(out), "--no-progress",
+                              *(x for s in SHORT for x in ("--set", s))])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    with (out / "trials.csv").open() as f:
+        header = next(csv.reader(f))
+    assert header == ["family", "trial", "constant", "policy:gyro_run"]
