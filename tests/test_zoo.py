@@ -150,4 +150,8 @@ def test_shipped_entries_load() -> None:
         assert len(e.spec.seeds) >= 3  # intervals across training seeds
         judged = [c.seed for c in e.spec.cases()]
         judged += [e.spec.families.seed] if e.spec.families is not None else []
+        if e.spec.judging is not None:  # qkf judge: the problem's judging seeds
+            seed = e.spec.judging.seed
+            judged.append(e.problem.seeds.judging[0] if seed is None else seed)
+            assert all(e.problem.seeds.judges(s) for s in judged)
         assert judged and e.train_cfg.eval.seed not in judged

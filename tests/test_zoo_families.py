@@ -74,7 +74,7 @@ def test_spec_defaults_and_refusals() -> None:
         with pytest.raises(ConfigError) as err:
             validate(ZooSpec, {"train": "x", "families": section}, "zoo.yaml", "zoo entry")
         assert message in str(err.value), what
-    with pytest.raises(ConfigError, match="judge: or families: required"):
+    with pytest.raises(ConfigError, match="judge:, families: or judging: required"):
         validate(ZooSpec, {"train": "x"}, "zoo.yaml", "zoo entry")
     assert FamiliesJudge(seed=0).seed == 0
 

@@ -16,6 +16,7 @@ from envs import ENVIRONMENTS
 from qkf.core.io import atomic_write_text
 
 FAMILIES_SUMMARY = "zoo_families.csv"
+JUDGING_SUMMARY = "zoo_judging.csv"
 
 
 def _training_lines(entry: ZooEntry) -> list[str]:
@@ -83,7 +84,7 @@ def _fmt(r: dict[str, str]) -> str:
 def _evaluation_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     path = evaluation / "zoo_summary.csv"
     if not path.is_file():
-        if (evaluation / FAMILIES_SUMMARY).is_file():
+        if (evaluation / FAMILIES_SUMMARY).is_file() or (evaluation / JUDGING_SUMMARY).is_file():
             return []
         return ["## Evaluation", "", f"Not judged yet: `qkf zoo evaluate {entry.name}`.", ""]
     rows = read_summary(path)
@@ -231,6 +232,64 @@ def _families_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
     return lines
 
 
+def _judging_lines(entry: ZooEntry, evaluation: Path) -> list[str]:
+    """The ``judging:`` section of the card, from ``evaluation/zoo_judging.csv``
+    (:func:`agents.zoo.summary.judging_summary`): per family a table of every training seed's
+    policy against every baseline, and the IQM over seeds."""
+    path = evaluation / JUDGING_SUMMARY
+    if not path.is_file():
+        return []
+    rows = read_summary(path)
+    if not rows:
+        return []
+    seed, pct, metric = rows[0]["seed"], f"{100 * LEVEL:g} %", entry.problem.metric
+    lines = [
+        "## Judged on the problem's families",
+        "",
+        f"Command: `qkf zoo evaluate {entry.name}`: `qkf judge {entry.problem.name}` (benchmark "
+        f"seed {seed}, a judging seed) with the baselines and `{entry.name}#SEED=policy:"
+        f"seed_SEED/{entry.model_name()}` of every training seed on the same trials; the run's "
+        f"own tables are in `evaluation/judging_seed{seed}_versus.md`. Metric: `{metric.name}` "
+        f"({metric.description}). Cell: RMS of the policy ÷ the baseline's on the same trials, "
+        f"paired {pct} bootstrap interval, verdict (`better` / `worse`: the pooled and the "
+        "median per-trial intervals both below / above 1), then the median per-trial ratio and "
+        "the share of trials won. IQM: the interquartile mean of the seeds' pooled ratios, with "
+        "their range.",
+        "",
+    ]
+    for family in dict.fromkeys(r["scenario"] for r in rows):
+        mine = [r for r in rows if r["scenario"] == family]
+        bases = list(dict.fromkeys(r["versus"] for r in mine))
+        cells = {(r["policy"], r["quantity"], r["versus"]): r for r in mine}
+        lines += [
+            f"### {family} ({mine[0]['trials']} trials)",
+            "",
+            "| policy | " + " | ".join(f"÷ {b}" for b in bases) + " |",
+            "|---|" + "---|" * len(bases),
+        ]
+        for policy in dict.fromkeys(r["policy"] for r in mine):
+            out = []
+            for b in bases:
+                r = cells.get((policy, "ratio", b))
+                span = cells.get((policy, "ratio_range", b))
+                med, won = (
+                    cells.get((policy, "median_ratio", b)),
+                    cells.get((policy, "trials_won", b)),
+                )
+                if r is not None:
+                    text = _ratio_cell(r)
+                    if med is not None and won is not None:
+                        text += f"; median {_num(med['value'])}, won {float(won['value']):.0%}"
+                elif span is not None:
+                    text = f"{_num(span['value'])} ({_num(span['lo'])}–{_num(span['hi'])})"
+                else:
+                    text = "–"
+                out.append(text)
+            lines.append(f"| {policy} | " + " | ".join(out) + " |")
+        lines.append("")
+    return lines
+
+
 def write_card(entry: ZooEntry, folder: Path | None = None) -> Path:
     """Write ``card.md`` into ``folder`` (default: the entry's own), its judging tables from
     ``folder/evaluation/`` (``zoo_summary.csv``, ``zoo_families.csv``); returns its path."""
@@ -240,6 +299,7 @@ def write_card(entry: ZooEntry, folder: Path | None = None) -> Path:
         _training_lines(entry)
         + _evaluation_lines(entry, evaluation)
         + _families_lines(entry, evaluation)
+        + _judging_lines(entry, evaluation)
     )
     path = folder / "card.md"
     atomic_write_text(path, "\n".join(lines).rstrip() + "\n")

@@ -25,14 +25,23 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from agents.config import load_train_config
 from agents.training import plan_training
 from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
 from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry
-from agents.zoo.summary import LEVEL, families_summary, judge_summary, write_summary
+from agents.zoo.summary import (
+    LEVEL,
+    families_summary,
+    judge_summary,
+    judging_summary,
+    write_summary,
+)
 from qkf.core.config import ConfigError, read_yaml_mapping
-from qkf.core.io import OutputError, atomic_write_bytes
+from qkf.core.family_judging import RUN_KIND, JudgePlan
+from qkf.core.io import OutputError, atomic_write_bytes, check_output_dir
 
 PROMOTED = ("config.yaml", "card.md", "SOURCE")
 """What ``promote`` writes into ``best/`` besides the model."""
@@ -43,9 +52,12 @@ SEED_FILES = ("config.yaml", "training.json")
 
 FAMILIES_DIR = "families"
 """The families study's folder in the work folder (``WORK/families/``)."""
+JUDGING_DIR = "judging"
+"""The ``qkf judge`` run of a ``judging:`` section in the work folder (``WORK/judging/``)."""
 EVALUATION_FILES = (
     "*_trials.csv", "*_summary.md", "zoo_summary.csv", "zoo_families.csv",
-    "families_seed*.md", "families_seed*.csv",
+    "families_seed*.md", "families_seed*.csv", "zoo_judging.csv", "judging_seed*.md",
+    "judging_seed*.csv",
 )  # fmt: skip
 """What ``evaluate`` writes into ``evaluation/`` (an earlier run's are removed first, so that
 the folder and the card describe one judgement)."""
@@ -312,6 +324,53 @@ def evaluate_families(
     return out
 
 
+def judging_plan(
+    entry: ZooEntry, trials: int | None, baselines: list[str] | None = None
+) -> JudgePlan:
+    """The ``qkf judge`` run of the entry's ``judging:`` section, checked against its problem
+    before any work (``ConfigError`` naming ``zoo.yaml``): the section's baselines (only
+    ``baselines`` among them if given) and ``NAME#SEED=policy:PATH`` of every trained seed, the
+    policies compared with every baseline; ``trials`` replaces the section's own."""
+    from qkf.core.family_judging import plan_judging
+
+    section = entry.spec.judging
+    where = f"{entry.folder / 'zoo.yaml'}: judging"
+    if section is None:
+        raise ConfigError(f"{where}: no judging: section")
+    kept = list(section.baselines)
+    if baselines is not None:
+        unknown = [b for b in baselines if b not in kept]
+        if unknown:
+            raise ConfigError(f"{where}: --baselines: {', '.join(unknown)}: not among "
+                              f"{', '.join(kept)}")  # fmt: skip
+        kept = [b for b in kept if b in baselines]
+    policies = family_policies(entry)
+    try:
+        return plan_judging(
+            entry.problem.name, section.families, [*kept, *policies],
+            [p.partition("=")[0] for p in policies], trials or section.trials, section.seed,
+            section.overrides, LEVEL,
+        )  # fmt: skip
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def evaluate_judging(
+    entry: ZooEntry, plan: JudgePlan, work: Path, progress: bool, say: Callable[[str], None]
+) -> tuple[Path, dict[str, dict[str, np.ndarray]]]:
+    """Run ``plan`` (:func:`judging_plan`) into ``WORK/judging/``, replacing an earlier one;
+    returns the folder and the metric per family, method and trial."""
+    from qkf.core.family_judging import judge_rows, run_judging, write_judging
+
+    def on_family(i: int, n: int, family: str) -> None:
+        say(f"family {i}/{n}: {family}")
+
+    errors = run_judging(plan, progress, on_family)
+    out = work / JUDGING_DIR
+    write_judging(plan, errors, judge_rows(plan, errors), out)
+    return out, errors
+
+
 def _clear(folder: Path) -> None:
     """Remove what an earlier ``evaluate`` wrote into ``folder`` (:data:`EVALUATION_FILES`)."""
     for pattern in EVALUATION_FILES:
@@ -343,6 +402,12 @@ def evaluate_entry(
     fam = entry.spec.families
     if fam is not None:
         check_families(entry, work, trials, baselines)
+    plan = judging_plan(entry, trials, baselines) if entry.spec.judging is not None else None
+    if plan is not None:
+        try:
+            check_output_dir(work / JUDGING_DIR, RUN_KIND, overwrite=None)
+        except OutputError as exc:
+            raise ConfigError(f"--work: {exc}") from None
     dst = work / "evaluation"
     dst.mkdir(parents=True, exist_ok=True)
     _clear(dst)
@@ -375,6 +440,17 @@ def evaluate_entry(
         _copy(study / "families.csv", dst / f"families_seed{fam.seed}.csv")
         rows = families_summary(entry, study, judged, entry.selected_seed())
         write_summary(rows, dst / "zoo_families.csv")
+    if plan is not None:
+        say(
+            f"judging on the {plan.problem.name} families {', '.join(plan.families)}, "
+            f"benchmark seed {plan.seed}"
+        )
+        folder, errors = evaluate_judging(entry, plan, work, progress, say)
+        for name in ("versus.md", "versus.csv", "trials.csv"):
+            stem, suffix = name.split(".")
+            _copy(folder / name, dst / f"judging_seed{plan.seed}_{stem}.{suffix}")
+        rows = judging_summary(entry, plan, errors)
+        write_summary(rows, dst / "zoo_judging.csv")
     card = write_card(entry, work)
     if update_entry:
         shipped = entry.folder / "evaluation"
@@ -410,8 +486,10 @@ __all__ = [
     "evaluate_case",
     "evaluate_entry",
     "evaluate_families",
+    "evaluate_judging",
     "families_run",
     "family_policies",
+    "judging_plan",
     "policy_methods",
     "promote",
     "train_entry",

@@ -20,7 +20,17 @@
       seed: 9000                 # a judging seed, [0, 1 000 000) (default 9000)
       baselines: [kf, kf-tuned, clock, hindsight]   # default: the families study's methods
 
-An entry needs ``judge:`` or ``families:`` (or both).
+An entry of any problem (its training environment's, ``qkf.core.problem.problem_of_env``) is
+judged by ``qkf judge`` instead (``judge:`` and ``families:`` run transfer alignment's bench)::
+
+    judging:                     # qkf judge PROBLEM on the problem's families
+      families: [gyro_noise_levels, gyro_control]   # default: every family of the problem
+      baselines: [constant, clock, nis-adaptive]    # the problem's method specs; the first is
+                                                    # the reference of the IQM over seeds
+      trials: 64                 # per family (default 64)
+      seed: 5000000              # default: the problem's first judging seed
+
+An entry needs ``judge:``, ``families:`` or ``judging:``.
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ from pydantic import Field, field_validator, model_validator
 from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
+from qkf.core.problem import Problem, problem_of_env
 from qkf.transfer_alignment.adaptive import TUNING_SEEDS
 from qkf.transfer_alignment.config import MAX_TRIALS
 
@@ -144,6 +155,19 @@ class FamiliesJudge(StrictModel):
         return baselines
 
 
+class ProblemJudge(StrictModel):
+    """The judgement of an entry of any problem: ``qkf judge`` on the problem's families with
+    the baselines and the policy of every training seed (``NAME#SEED``) on the same trials.
+    What the problem accepts (families, method specs, seed, trials) is checked against it
+    before any work (:func:`agents.zoo.commands.judging_plan`)."""
+
+    families: list[str] | None = None  # default: every family of the problem
+    baselines: Annotated[list[str], Field(min_length=1)]
+    trials: Annotated[int, Field(ge=2)] = 64  # per family
+    seed: int | None = None  # default: the problem's first judging seed
+    overrides: list[str] = Field(default_factory=list)  # --set style, of every family
+
+
 class ZooSpec(StrictModel):
     description: str = ""
     train: str
@@ -153,11 +177,12 @@ class ZooSpec(StrictModel):
     judge: JudgeCase | None = None
     also: list[JudgeCase] = Field(default_factory=list)
     families: FamiliesJudge | None = None
+    judging: ProblemJudge | None = None
 
     @model_validator(mode="after")
     def _judged_somewhere(self) -> ZooSpec:
-        if self.judge is None and self.families is None:
-            raise ValueError("judge: or families: required (how the entry is judged)")
+        if self.judge is None and self.families is None and self.judging is None:
+            raise ValueError("judge:, families: or judging: required (how the entry is judged)")
         if self.judge is None and self.also:
             raise ValueError("also: needs a judge: case first")
         if len(set(self.seeds)) != len(self.seeds):
@@ -177,6 +202,11 @@ class ZooEntry:
     folder: Path
     spec: ZooSpec
     train_cfg: TrainConfig
+
+    @property
+    def problem(self) -> Problem:
+        """The problem of its training environment (``qkf.core.problem.problem_of_env``)."""
+        return problem_of_env(self.train_cfg.env)
 
     @property
     def train_source(self) -> str:
@@ -239,6 +269,16 @@ def load_entry(name: str | Path, zoo: Path = ZOO_DIR) -> ZooEntry:
         train_cfg = load_train_config(local if local.is_file() else spec.train)
     except ConfigError as exc:
         raise ConfigError(f"{spec_file}: train: {spec.train}: {exc}") from None
+    try:
+        problem = problem_of_env(train_cfg.env)
+    except KeyError as exc:
+        raise ConfigError(f"{spec_file}: train: {exc.args[0]}") from None
+    if problem.name != "transfer_alignment" and (spec.judge is not None or spec.families):
+        raise ConfigError(
+            f"{spec_file}: judge: and families: run transfer alignment's bench and families "
+            f"study; an entry of {problem.name} ({train_cfg.env}) is judged with judging: "
+            "(qkf judge)"
+        )
     return ZooEntry(folder.name, folder, spec, train_cfg)
 
 

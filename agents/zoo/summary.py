@@ -40,6 +40,7 @@ from qkf.core.stats import (
 )
 
 if TYPE_CHECKING:  # the families module loads the filter: imported where it is used
+    from qkf.core.family_judging import JudgePlan
     from qkf.transfer_alignment.families import VersusRow
 
 RESAMPLES = 2000
@@ -224,6 +225,43 @@ def families_summary(
         for v in versus_rows(family, values, [label], boot.resamples, boot.level, seed):
             if v.other in VERSUS:
                 rows += comparison_rows(row, v)
+    return rows
+
+
+def judging_summary(
+    entry: ZooEntry, plan: JudgePlan, errors: dict[str, dict[str, np.ndarray]]
+) -> list[JudgeRow]:
+    """The rows of ``zoo_judging.csv`` (a ``judging:`` section, any problem): per family, each
+    training seed's policy ``NAME#SEED`` against every baseline, paired over the same trials
+    (:func:`qkf.core.versus.versus_rows`, the run's own bootstrap: ``ratio`` with its verdict,
+    ``median_ratio``, ``trials_won``, ``worst_decile``), and over the seeds ``NAME:IQM``: the
+    interquartile mean of the pooled ratios to each baseline with the seeds' range
+    (``ratio_range``)."""
+    from qkf.core.versus import versus_rows
+
+    policies = [p for p in plan.focus if p.startswith(f"{entry.name}#")]
+    bases = [b for b in plan.labels if b not in policies]
+    metric = plan.problem.metric.name
+    rows: list[JudgeRow] = []
+    for family in plan.families:
+        values = errors[family]
+
+        def row(policy: str, quantity: str, versus: str, value: float, lo: float, hi: float,
+                verdict: str = "", family: str = family) -> JudgeRow:  # fmt: skip
+            return JudgeRow(family, plan.seed, plan.trials, metric, policy, quantity, versus,
+                            value, lo, hi, verdict)  # fmt: skip
+
+        compared = versus_rows(family, values, policies, plan.resamples, plan.level, plan.seed)
+        for v in compared:
+            if v.other in bases:
+                rows += comparison_rows(row, v)
+        if len(policies) >= 2:
+            for b in bases:
+                ratios = np.array([v.ratio for v in compared if v.other == b])
+                iqm = interquartile_mean(ratios)
+                rows.append(
+                    row(f"{entry.name}:IQM", "ratio_range", b, iqm, ratios.min(), ratios.max())
+                )
     return rows
 
 
