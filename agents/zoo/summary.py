@@ -38,10 +38,10 @@ from qkf.core.stats import (
     ratio_side,
     resample_counts,
 )
+from qkf.core.versus import VersusRow
 
-if TYPE_CHECKING:  # the families module loads the filter: imported where it is used
+if TYPE_CHECKING:
     from qkf.core.family_judging import JudgePlan
-    from qkf.transfer_alignment.families import VersusRow
 
 RESAMPLES = 2000
 LEVEL = 0.95
@@ -129,8 +129,6 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
         rows.append(row(p, "rms", "", point[p], float(lo), float(hi)))
         for b in bases:
             lo, hi = percentile_interval(reps[p] / reps[b], LEVEL)
-            from qkf.transfer_alignment.families import VersusRow
-
             per = per_trial_comparison(per_trial[p], per_trial[b], counts, LEVEL)
             compared = VersusRow(
                 case.scenario, p, b, point[p] / point[b], float(lo), float(hi),
@@ -162,7 +160,7 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
 
 def comparison_rows(row: Callable[..., JudgeRow], v: VersusRow) -> list[JudgeRow]:
     """The rows of one paired comparison ``v`` (policy ``v.method`` against ``v.other``): the
-    pooled ratio with its verdict (:attr:`~qkf.transfer_alignment.families.VersusRow.verdict`:
+    pooled ratio with its verdict (:attr:`~qkf.core.versus.VersusRow.verdict`:
     both intervals), the median per-trial ratio with its interval, the share of trials won and
     the worst decile."""
     nan = float("nan")
