@@ -260,3 +260,13 @@ def test_a_gyro_policy_saved_by_training_is_judged_and_evaluate_points_to_judge(
     with (out / "trials.csv").open() as f:
         header = next(csv.reader(f))
     assert header == ["family", "trial", "constant", "policy:gyro_run"]
+
+
+def test_judging_refuses_a_missing_policy_and_episodes_too_short_to_judge() -> None:
+    with pytest.raises(ConfigError, match=r"--methods: 'policy:/nonexistent/model\.zip'"):
+        plan_judging(
+            "redundant_gyros", ["gyro_control"], ["constant", "policy:/nonexistent/model.zip"]
+        )
+    with pytest.raises(ConfigError, match="leaves no judged epoch"):
+        plan_judging("redundant_gyros", ["gyro_control"], ["constant", "clock"],
+                     overrides=["scenario.duration_s=20"])  # fmt: skip

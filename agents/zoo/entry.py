@@ -25,8 +25,8 @@ judged by ``qkf judge`` instead (``judge:`` and ``families:`` run transfer align
 
     judging:                     # qkf judge PROBLEM on the problem's families
       families: [gyro_noise_levels, gyro_control]   # default: every family of the problem
-      baselines: [constant, clock, nis-adaptive]    # the problem's method specs; the first is
-                                                    # the reference of the IQM over seeds
+      baselines: [constant, clock, nis-adaptive]    # the problem's method specs; every
+                                                    # policy is compared with each
       trials: 64                 # per family (default 64)
       seed: 5000000              # default: the problem's first judging seed
 

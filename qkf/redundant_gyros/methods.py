@@ -37,6 +37,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from qkf.core.config import ConfigError
 from qkf.core.registry import Registry, RegistryError
 from qkf.redundant_gyros import clock, nis_adaptive
 from qkf.redundant_gyros import hindsight as hs
@@ -113,7 +114,9 @@ def resolve_gyro_method(spec: str) -> tuple[str, GyroMethod]:
     name, colon, arg = target.partition(":")
     try:
         method = GYRO_METHOD_FACTORIES[name](arg) if colon else GYRO_METHODS[target]
-    except RegistryError as exc:
+    except ConfigError:  # a factory's own refusal names what it refused
+        raise
+    except (RegistryError, OSError, ValueError) as exc:  # a factory refusing its argument too
         raise ValueError(f"{spec!r}: {exc}") from None
     default = getattr(method, "default_label", None)
     return label or (default if isinstance(default, str) else target), method

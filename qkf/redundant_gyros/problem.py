@@ -83,6 +83,13 @@ class RedundantGyros:
     def check_workload(self, cfg: Any, trials: int) -> None:
         """``ConfigError`` if ``trials`` episodes, all held at once, exceed
         :data:`~.config.MAX_CHUNK_TRIAL_EPOCHS` trial-epochs."""
+        from qkf.redundant_gyros.hindsight import SETTLED_S
+
+        if cfg.scenario.duration_s <= SETTLED_S:
+            raise ConfigError(
+                f"scenario.duration_s: {cfg.scenario.duration_s:g} s leaves no judged epoch "
+                f"(episodes are judged from {SETTLED_S:g} s on)"
+            )
         epochs = epochs_of(cfg.scenario.duration_s, cfg.scenario.dt_s)
         if trials * epochs > MAX_CHUNK_TRIAL_EPOCHS:
             raise ConfigError(
