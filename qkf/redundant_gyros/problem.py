@@ -101,13 +101,7 @@ class RedundantGyros:
 
     def method_labels(self, specs: Sequence[str]) -> list[str]:
         """The labels of :func:`~qkf.redundant_gyros.methods.resolve_gyro_method`."""
-        from qkf.redundant_gyros.methods import resolve_gyro_method
-
-        labels = [resolve_gyro_method(s)[0] for s in specs]
-        twice = sorted({x for x in labels if labels.count(x) > 1})
-        if twice:
-            raise ValueError(f"{', '.join(twice)}: the same label twice (use LABEL=SPEC)")
-        return labels
+        return [label for label, _ in _resolved(specs)]
 
     def trial_errors(
         self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
@@ -115,10 +109,8 @@ class RedundantGyros:
         """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
         ones tuned on :meth:`tuning`'s episodes."""
         from qkf.core.montecarlo import progress_bar
-        from qkf.redundant_gyros.methods import resolve_gyro_method
 
-        methods = [resolve_gyro_method(s) for s in specs]
-        self.method_labels(specs)
+        methods = _resolved(specs)
         episodes = self.simulate(cfg, seed, range(trials))
         tuning = self.tuning(cfg)
         out = {}
@@ -128,6 +120,18 @@ class RedundantGyros:
                 out[label] = np.sqrt(np.asarray(method(cfg, episodes, tuning), dtype=float))
                 bar()
         return out
+
+
+def _resolved(specs: Sequence[str]) -> list[tuple[str, Any]]:
+    """``(label, method)`` of each spec, resolved once; ``ValueError`` for a label twice."""
+    from qkf.redundant_gyros.methods import resolve_gyro_method
+
+    methods = [resolve_gyro_method(s) for s in specs]
+    labels = [label for label, _ in methods]
+    twice = sorted({x for x in labels if labels.count(x) > 1})
+    if twice:
+        raise ValueError(f"{', '.join(twice)}: the same label twice (use LABEL=SPEC)")
+    return methods
 
 
 PROBLEM = RedundantGyros()
