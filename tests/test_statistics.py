@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
-from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
-from qkf.core.versus import paired_verdict
+from qkf.core.stats import bootstrap_rms, percentile_interval, percentiles, resample_counts
+from qkf.core.versus import paired_verdict, versus_rows
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, recovery_times
 
 runner = CliRunner()
@@ -114,6 +114,46 @@ def test_bootstrap_rms_by_hand() -> None:
     c = resample_counts(7, 500, seed=1)
     assert c.shape == (500, 7) and np.all(c.sum(axis=1) == 7)
     np.testing.assert_array_equal(c, resample_counts(7, 500, seed=1))
+
+
+def test_a_lost_trial_makes_inf_only_of_the_resamples_that_draw_it() -> None:
+    ms = np.array([[1.0], [np.inf], [9.0]])
+    counts = np.array([[2.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 3.0, 0.0]])
+    out = bootstrap_rms(ms, counts)[:, 0]
+    assert out[0] == pytest.approx(np.sqrt(11 / 3)) and out[1] == out[2] == np.inf
+    nan = bootstrap_rms(np.array([[1.0], [np.nan], [9.0]]), counts)[:, 0]  # NaN: lost as well
+    assert nan[0] == pytest.approx(np.sqrt(11 / 3)) and nan[1] == nan[2] == np.inf
+
+
+def test_percentiles_keep_infinities_where_numpy_gives_nan() -> None:
+    x = np.array([3.0, 1.0, np.inf, 2.0])  # sorted 1, 2, 3, inf; virtual index 3q/100
+    lo, mid, hi, top = percentiles(x, [2.5, 50.0, 97.5, 100.0])
+    assert lo == pytest.approx(1.075) and mid == pytest.approx(2.5)
+    assert hi == np.inf and top == np.inf  # numpy: NaN for both
+    assert percentiles(np.array([1.0, 2.0, 3.0, np.inf]), [200 / 3])[0] == 3.0  # on a sample
+    cols = np.random.default_rng(0).random((40, 3))
+    cols[5, 1], cols[6, 2] = np.inf, np.nan
+    got = percentiles(cols, [2.5, 90.0, 97.5])
+    np.testing.assert_array_equal(got[:, 0], np.percentile(cols[:, 0], [2.5, 90.0, 97.5]))
+    big = np.where(np.isinf(cols[:, 1]), 1e300, cols[:, 1])  # 90 % of 39 gaps stays below it
+    np.testing.assert_allclose(got[:2, 1], np.percentile(big, [2.5, 90.0]))
+    assert got[2, 1] == np.inf  # 97.5 % interpolates towards the inf
+    assert np.isnan(got[:, 2]).all()
+
+
+def test_a_method_that_loses_trials_is_judged_worse_not_inconclusive() -> None:
+    """A method as good as the other except that it diverges on 3 of 40 trials: both the
+    pooled and the per-trial intervals lie above 1 (before, 0 · inf spread NaN over every
+    resample and the verdict read "inconclusive")."""
+    rng = np.random.default_rng(4)
+    base = 1.0 + 0.1 * rng.random(40)
+    lossy = 1.05 * base
+    lossy[[3, 17, 31]] = np.inf
+    rows = versus_rows("f", {"lossy": lossy, "base": base}, ["lossy", "base"], 400, 0.95, 1)
+    row, back = rows
+    assert (row.method, row.other, row.ratio, row.hi) == ("lossy", "base", np.inf, np.inf)
+    assert 1.0 < row.lo < np.inf and row.verdict == "worse"
+    assert back.ratio == 0.0 and back.verdict == "better"
 
 
 def test_interval_coverage() -> None:

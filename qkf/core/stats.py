@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -83,11 +84,18 @@ def bootstrap_rms(ms: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """RMS over trials of each resample: ``sqrt(Σ_i c_ri ms_i / n)``.
 
     ``ms`` (n_trials, ...) are per-trial mean squares; ``counts`` (R, n_trials) from
-    :func:`resample_counts`. Returns (R, ...).
+    :func:`resample_counts`. Returns (R, ...). A trial whose mean square is not finite (the
+    method lost it) makes ``inf`` of exactly the resamples that draw it; the matrix product
+    alone would spread ``0 · inf = NaN`` to every resample.
     """
     n = ms.shape[0]
     flat = ms.reshape(n, -1)
-    out = np.sqrt(counts @ flat / n)
+    finite = np.isfinite(flat)
+    if finite.all():
+        out = np.sqrt(counts @ flat / n)
+    else:
+        out = np.sqrt(counts @ np.where(finite, flat, 0.0) / n)
+        out[counts @ (~finite).astype(np.float64) > 0] = np.inf
     return out.reshape(counts.shape[0], *ms.shape[1:])
 
 
@@ -97,10 +105,42 @@ def ratio_side(lo: float, hi: float) -> int:
     return -1 if hi < 1.0 else 1 if lo > 1.0 else 0
 
 
+def percentiles(samples: np.ndarray, q: Sequence[float]) -> np.ndarray:
+    """``np.percentile(samples, q, axis=0)`` (linear interpolation) that keeps infinities:
+    numpy interpolates as ``b − (b − a)(1 − t)``, so a percentile next to an ``inf`` comes out
+    NaN (``inf − inf``). Here a percentile whose interpolation reaches ``±inf`` is that
+    infinity; a column holding a NaN stays NaN. Columns without an infinity are numpy's own.
+    Returns (len(q), ...)."""
+    x = np.asarray(samples, dtype=float)
+    qs = np.asarray(q, dtype=float)
+    flat = x.reshape(x.shape[0], -1)
+    inf = np.isinf(flat)
+    with np.errstate(invalid="ignore"):
+        out = np.percentile(np.where(inf, 0.0, flat), qs, axis=0)
+    cols = inf.any(axis=0)
+    if cols.any():
+        xs = np.sort(flat[:, cols], axis=0)  # NaN last
+        lost = np.isnan(xs).any(axis=0)
+        n = xs.shape[0]
+        for i, qi in enumerate(qs):
+            h = (n - 1) * (qi / 100.0)  # numpy's virtual index for linear interpolation
+            k = min(int(np.floor(h)), n - 1)
+            g = h - k
+            a, b = xs[k], xs[min(k + 1, n - 1)]
+            with np.errstate(invalid="ignore"):
+                d = b - a
+                v = a if g == 0.0 else (a + d * g if g < 0.5 else b - d * (1.0 - g))
+            v = np.where((a == -np.inf) | (a == np.inf), a, v)
+            v = np.where((b == np.inf) & (g > 0.0), np.inf, v)
+            out[i, cols] = np.where(lost, np.nan, v)
+    return out.reshape(len(qs), *x.shape[1:])
+
+
 def percentile_interval(samples: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-    """Percentile interval over the first axis (bootstrap replicates)."""
+    """Percentile interval over the first axis (bootstrap replicates); ``inf`` replicates (a
+    resample that drew a lost trial) are kept as such (:func:`percentiles`)."""
     tail = 50.0 * (1.0 - level)
-    lo, hi = np.percentile(samples, [tail, 100.0 - tail], axis=0)
+    lo, hi = percentiles(samples, [tail, 100.0 - tail])
     return lo, hi
 
 
@@ -189,8 +229,7 @@ def per_trial_comparison(
     over the resamples ``counts`` (R, n) (the same as the pooled ratio's: paired)."""
     r = trial_ratios(values, base)
     lo, hi = percentile_interval(bootstrap_median(r, counts), level)
-    with np.errstate(invalid="ignore"):
-        worst = np.percentile(r, 100.0 * WORST_QUANTILE, axis=0)
+    worst = percentiles(r, [100.0 * WORST_QUANTILE])[0]
     return PerTrialComparison(
         median=np.median(r, axis=0),
         median_lo=lo,
