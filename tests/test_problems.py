@@ -188,10 +188,14 @@ def test_judging_refuses_before_any_work() -> None:
                              "trials": 4}  # fmt: skip
     plan = plan_judging("redundant_gyros", **ok)  # type: ignore[arg-type]
     assert plan.seed == 5_000_000 and plan.focus == ["constant", "clock"]
+    last = plan_judging("redundant_gyros", **{**ok, "seed": 5_999_996})  # type: ignore[arg-type]
+    assert last.seed == 5_999_996  # its 4 episodes are the range's last 4 seeds
     cases: dict[str, tuple[dict[str, object], str]] = {
         "problem": ({"problem": "nope"}, "unknown problem 'nope'"),
         "family": ({"families": ["steady_random"]}, "--families: steady_random: not a family"),
         "seed": ({"seed": 1_000_000}, "--seed: 1000000 is not a judging seed"),
+        "span": ({"seed": 5_999_998}, r"--seed: 4 trials of seed 5999998 draw seeds \[5,999,998, "
+                 r"6,000,002\), not all of them judging seeds"),
         "method": ({"specs": ["constant", "kf"]}, "--methods: .*unknown gyro method 'kf'"),
         "one": ({"specs": ["constant"]}, "--methods: at least two methods"),
         "focus": ({"focus": ["policy"]}, "--focus: policy: not among"),

@@ -94,10 +94,16 @@ def plan_judging(
     if not (0.5 <= level < 1.0 and resamples >= 100):
         raise ConfigError("the bootstrap: level in [0.5, 1), resamples ≥ 100")
     seed = prob.seeds.judging[0] if seed is None else seed
-    if not prob.seeds.judges(seed):
+    if not prob.seeds.judges(seed, trials):
         low, high = prob.seeds.judging
+        drawn = (
+            f"{trials} trials of seed {seed} draw seeds [{seed:,}, {seed + trials:,}), "
+            "not all of them judging seeds"
+            if prob.seeds.seed_per_trial and prob.seeds.judges(seed)
+            else f"{seed} is not a judging seed"
+        )
         raise ConfigError(
-            f"--seed: {seed} is not a judging seed of {prob.name}: [{low:,}, {high:,}) "
+            f"--seed: {drawn} of {prob.name}: [{low:,}, {high:,}) "
             f"(tuning seeds: [{prob.seeds.tuning[0]:,}, {prob.seeds.tuning[1]:,}))"
         )
     if not specs:

@@ -72,11 +72,16 @@ class SeedRanges:
 
     judging: tuple[int, int]
     tuning: tuple[int, int]
+    seed_per_trial: bool = False
+    """Trial ``t`` of benchmark seed ``s`` draws from seed ``s + t`` (the gyro environments'
+    episodes), so ``n`` trials use every seed of ``[s, s + n)``; else the trials of ``s`` are
+    streams of ``s`` alone."""
 
-    def judges(self, seed: int) -> bool:
-        """Whether ``seed`` is a judging seed."""
+    def judges(self, seed: int, trials: int = 1) -> bool:
+        """Whether ``trials`` trials of benchmark seed ``seed`` draw only from judging seeds."""
         low, high = self.judging
-        return low <= seed < high
+        last = seed + max(trials, 1) - 1 if self.seed_per_trial else seed
+        return low <= seed and last < high
 
 
 @runtime_checkable

@@ -54,7 +54,9 @@ class RedundantGyros:
         "rms_settled",
         "√J: the settled RMS of the four calibrated states over their prior sd (dimensionless)",
     )
-    seeds = SeedRanges(judging=(5_000_000, 6_000_000), tuning=(1_000_000, 2_000_000))
+    seeds = SeedRanges(
+        judging=(5_000_000, 6_000_000), tuning=(1_000_000, 2_000_000), seed_per_trial=True
+    )
     max_trials = MAX_TRIALS
 
     @property
