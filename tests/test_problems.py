@@ -194,8 +194,11 @@ def test_judging_refuses_before_any_work() -> None:
         "problem": ({"problem": "nope"}, "unknown problem 'nope'"),
         "family": ({"families": ["steady_random"]}, "--families: steady_random: not a family"),
         "seed": ({"seed": 1_000_000}, "--seed: 1000000 is not a judging seed"),
-        "span": ({"seed": 5_999_998}, r"--seed: 4 trials of seed 5999998 draw seeds \[5,999,998, "
-                 r"6,000,002\), not all of them judging seeds"),
+        "span": (
+            {"seed": 5_999_998},
+            r"--seed: 4 trials of seed 5999998 draw seeds \[5,999,998, "
+            r"6,000,002\), not all of them judging seeds",
+        ),
         "method": ({"specs": ["constant", "kf"]}, "--methods: .*unknown gyro method 'kf'"),
         "one": ({"specs": ["constant"]}, "--methods: at least two methods"),
         "focus": ({"focus": ["policy"]}, "--focus: policy: not among"),
@@ -274,3 +277,30 @@ def test_judging_refuses_a_missing_policy_and_episodes_too_short_to_judge() -> N
     with pytest.raises(ConfigError, match="leaves no judged epoch"):
         plan_judging("redundant_gyros", ["gyro_control"], ["constant", "clock"],
                      overrides=["scenario.duration_s=20"])  # fmt: skip
+
+
+def test_on_a_shift_family_the_tuned_methods_tune_on_the_family_it_shifts_from() -> None:
+    """Judged on ``gyro_shift_noise_levels``, the tuned constant is tuned on the tuning episodes
+    of ``gyro_noise_levels`` (what a policy trained there meets), never on the shift itself;
+    on any other family, on its own."""
+    plan = plan_judging(
+        "redundant_gyros", ["gyro_control", "gyro_shift_noise_levels"], ["constant", "clock"],
+        trials=2, overrides=SHORT,
+    )  # fmt: skip
+    assert plan.tuning_configs[0] is None
+    assert plan.tuning_configs[1] == load_gyros("gyro_noise_levels", SHORT)
+    prob = plan.problem
+    shift = plan.configs[1]
+    source = plan.tuning_configs[1]
+    got = prob.trial_errors(shift, ["constant"], 2, 5_000_000, tuning_cfg=source)["constant"]
+    episodes = prob.simulate(shift, 5_000_000, range(2))
+    tuned = {
+        id(cfg): np.sqrt(GYRO_METHODS["constant"](shift, episodes, prob.tuning(cfg)))
+        for cfg in (source, shift)
+    }
+    np.testing.assert_allclose(got, tuned[id(source)], rtol=1e-12)
+    assert not np.allclose(got, tuned[id(shift)])  # tuned on the shift, another κ
+    ta = PROBLEMS["transfer_alignment"]
+    assert ta.families.tuning_family("shift_late_snap_random") == "shift_late_snap_random"
+    with pytest.raises(ValueError, match="tune on what their specs name"):
+        ta.trial_errors(object(), ["kf"], 2, 0, tuning_cfg=object())

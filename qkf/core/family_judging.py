@@ -8,7 +8,9 @@ and the median per-trial ratio with paired bootstrap intervals, ``P(improve)``, 
 decile and a verdict. Everything that can be refused is refused by :func:`plan_judging` before
 any work: the problem, the families and their configs, the method specs, the focus labels, the
 workload and a seed outside the problem's judging range (a run judged on tuning seeds would
-judge the tuned methods on the trials they were tuned on).
+judge the tuned methods on the trials they were tuned on). On a shift family the tuned methods
+tune on :attr:`~qkf.core.problem.Families.shift_tuned_on`'s tuning trials, where the problem
+names one: none is told the shift it is judged under.
 
 Written by :func:`write_judging` (all files at once, :func:`~qkf.core.io.staged_directory`):
 
@@ -49,6 +51,7 @@ class JudgePlan:
     problem: Problem
     families: list[str]
     configs: list[Any]  # each family's config, with the overrides
+    tuning_configs: list[Any]  # the config each family's tuned methods tune on (None: its own)
     specs: list[str]  # method specs, as given
     labels: list[str]  # what they are reported under
     focus: list[str]
@@ -120,17 +123,19 @@ def plan_judging(
         raise ConfigError(
             f"--focus: {', '.join(missing)}: not among the methods' labels {', '.join(labels)}"
         )
-    configs = []
+    configs, tuning = [], []
     for fam in chosen:
+        tuned_on = prob.families.tuning_family(fam)
         try:
             cfg = prob.load_config(fam, list(overrides))
             prob.check_workload(cfg, trials)
+            tuning.append(None if tuned_on == fam else prob.load_config(tuned_on, list(overrides)))
         except ConfigError as exc:
             raise ConfigError(f"family {fam}: {exc}") from None
         configs.append(cfg)
     return JudgePlan(
-        prob, chosen, configs, list(specs), labels, picked, trials, seed, level, resamples,
-        list(overrides),
+        prob, chosen, configs, tuning, list(specs), labels, picked, trials, seed, level,
+        resamples, list(overrides),
     )  # fmt: skip
 
 
@@ -142,10 +147,13 @@ def run_judging(
     """Family → label → the judged metric per trial (trials,); ``on_family(i, n, family)``
     before each family."""
     out = {}
-    for i, (fam, cfg) in enumerate(zip(plan.families, plan.configs, strict=True), start=1):
+    runs = zip(plan.families, plan.configs, plan.tuning_configs, strict=True)
+    for i, (fam, cfg, tuning_cfg) in enumerate(runs, start=1):
         if on_family is not None:
             on_family(i, len(plan.families), fam)
-        out[fam] = plan.problem.trial_errors(cfg, plan.specs, plan.trials, plan.seed, progress)
+        out[fam] = plan.problem.trial_errors(
+            cfg, plan.specs, plan.trials, plan.seed, progress, tuning_cfg=tuning_cfg
+        )
     return out
 
 
@@ -227,6 +235,7 @@ def write_judging(
                 families=plan.families,
                 methods=dict(zip(plan.labels, plan.specs, strict=True)),
                 focus=plan.focus,
+                tuned_on={fam: plan.problem.families.tuning_family(fam) for fam in plan.families},
                 trials=plan.trials,
                 seed=plan.seed,
                 bootstrap={"level": plan.level, "resamples": plan.resamples},

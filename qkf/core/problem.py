@@ -21,9 +21,11 @@ A problem has:
 - ``seeds``: the benchmark-seed ranges for judging and for tuning (:class:`SeedRanges`);
 - ``max_trials`` and ``check_workload(cfg, trials)``: the largest run it accepts, and the
   refusal (``ConfigError``) of a run too large for memory, before any work;
-- ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed)``: method specs
-  (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials, each
-  giving the judged metric per trial: what :mod:`qkf.core.family_judging` compares.
+- ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed, tuning_cfg=)``: method
+  specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials,
+  each giving the judged metric per trial: what :mod:`qkf.core.family_judging` compares. The
+  tuned methods tune on ``tuning_cfg``'s tuning trials: on a shift family, those of
+  :attr:`Families.shift_tuned_on`.
 
 Adding a problem: write the object in the package's ``problem.py`` and register it with
 ``PROBLEMS.register_spec(name, "package.problem:PROBLEM")`` below, or, from another
@@ -59,6 +61,15 @@ class Families:
     control: tuple[str, ...]  # nothing changes: a policy must do no harm there
     shift: tuple[str, ...]  # the shift group: never in a training mixture or a tuning run
     mixture: str | None = None  # the training mixture (one of ``judged``), if there is one
+    shift_tuned_on: str | None = None
+    """The family whose tuning trials the tuned methods tune on when judged on a shift family,
+    so that none is told the shift it is judged under (what a policy trained on that family
+    meets there); None: the problem's method specs say it (transfer alignment's ``-mixed``
+    variants tune on the mixture)."""
+
+    def tuning_family(self, family: str) -> str:
+        """The family whose tuning trials the tuned methods use when judged on ``family``."""
+        return self.shift_tuned_on if family in self.shift and self.shift_tuned_on else family
 
     def all(self) -> tuple[str, ...]:
         """Every family once: the judged, the controls not among them, then the shift group."""
@@ -119,10 +130,18 @@ class Problem(Protocol):
         ...
 
     def trial_errors(
-        self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
+        self,
+        cfg: Any,
+        specs: Sequence[str],
+        trials: int,
+        seed: int,
+        progress: bool = False,
+        tuning_cfg: Any = None,
     ) -> dict[str, np.ndarray]:
         """Label → the judged metric per trial (trials,), every method on the trials
-        ``0 … trials − 1`` of benchmark seed ``seed`` (the same data: paired)."""
+        ``0 … trials − 1`` of benchmark seed ``seed`` (the same data: paired); the tuned
+        methods tune on ``tuning_cfg``'s tuning trials (None: ``cfg``'s; see
+        :attr:`Families.shift_tuned_on`)."""
         ...
 
 

@@ -28,7 +28,8 @@ FAMILIES: tuple[str, ...] = ("gyro_noise_levels", "five_gyros_onset_drift")
 CONTROL_FAMILIES: tuple[str, ...] = ("gyro_control",)
 """Nothing changes: constant coefficients, the assumed noise."""
 SHIFT_FAMILIES: tuple[str, ...] = ("gyro_shift_noise_levels",)
-"""Never trained or tuned on: noise levels beyond the training family's."""
+"""Never trained or tuned on: noise levels beyond the training family's. Judged there, the
+tuned methods tune on ``gyro_noise_levels``' tuning episodes (``Families.shift_tuned_on``)."""
 
 ENV_IDS: tuple[str, ...] = (
     "qkf/RedundantGyroCalibration-v0",
@@ -49,7 +50,12 @@ class RedundantGyros:
     name = "redundant_gyros"
     description = "κ of the UKF calibrating one of a redundant, skewed gyro unit's gyros"
     env_ids = ENV_IDS
-    families = Families(judged=FAMILIES, control=CONTROL_FAMILIES, shift=SHIFT_FAMILIES)
+    families = Families(
+        judged=FAMILIES,
+        control=CONTROL_FAMILIES,
+        shift=SHIFT_FAMILIES,
+        shift_tuned_on="gyro_noise_levels",
+    )
     metric = JudgedMetric(
         "rms_settled",
         "√J: the settled RMS of the four calibrated states over their prior sd (dimensionless)",
@@ -106,15 +112,21 @@ class RedundantGyros:
         return [label for label, _ in _resolved(specs)]
 
     def trial_errors(
-        self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
+        self,
+        cfg: Any,
+        specs: Sequence[str],
+        trials: int,
+        seed: int,
+        progress: bool = False,
+        tuning_cfg: Any = None,
     ) -> dict[str, np.ndarray]:
         """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
-        ones tuned on :meth:`tuning`'s episodes."""
+        ones tuned on :meth:`tuning`'s episodes of ``tuning_cfg`` (None: ``cfg``)."""
         from qkf.core.montecarlo import progress_bar
 
         methods = _resolved(specs)
         episodes = self.simulate(cfg, seed, range(trials))
-        tuning = self.tuning(cfg)
+        tuning = self.tuning(cfg if tuning_cfg is None else tuning_cfg)
         out = {}
         with progress_bar(len(methods), "gyro methods", progress, unit="methods") as bar:
             for label, method in methods:

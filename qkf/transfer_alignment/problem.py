@@ -106,10 +106,19 @@ class TransferAlignment:
         return [m.name for m in parse_methods(list(specs))]
 
     def trial_errors(
-        self, cfg: Any, specs: Sequence[str], trials: int, seed: int, progress: bool = False
+        self,
+        cfg: Any,
+        specs: Sequence[str],
+        trials: int,
+        seed: int,
+        progress: bool = False,
+        tuning_cfg: Any = None,
     ) -> dict[str, np.ndarray]:
         """``state_settled`` per trial of each method of a
-        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run."""
+        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. ``tuning_cfg`` must be
+        None: each method's spec says what it tunes on (``-mixed``: the mixture)."""
+        if tuning_cfg is not None:
+            raise ValueError("transfer alignment's methods tune on what their specs name")
         from qkf.transfer_alignment.benchmark import run_benchmark
         from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
