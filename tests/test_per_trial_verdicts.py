@@ -59,6 +59,17 @@ def test_per_trial_comparison_by_hand() -> None:
     assert (per.median_lo[0], per.median_hi[0]) == (lo, hi)
 
 
+def test_last_bit_differences_are_ties_not_wins() -> None:
+    """One schedule run by two compiled twins differs in the last bits: no win either way;
+    a difference beyond the tie tolerance is one."""
+    base = np.array([1.0, 2.0, 3.0, 4.0])[:, None]
+    twin = base * np.array([1 - 1e-15, 1 + 1e-15, 1 - 1e-12, 1.0])[:, None]
+    counts = resample_counts(4, 100, seed=1)
+    assert per_trial_comparison(twin, base, counts, 0.95).p_improve[0] == 0.5
+    apart = base * np.array([1 - 1e-6, 1 + 1e-6, 1 - 1e-6, 1.0])[:, None]
+    assert per_trial_comparison(apart, base, counts, 0.95).p_improve[0] == (2 + 0.5) / 4
+
+
 def test_a_lost_trial_counts_against_whoever_lost_it() -> None:
     r = trial_ratios(np.array([np.nan, 1.0, np.inf, 2.0]), np.array([1.0, np.nan, np.nan, 4.0]))
     assert r.tolist() == [math.inf, 0.0, 1.0, 0.5]

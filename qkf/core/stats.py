@@ -175,6 +175,11 @@ WORST_QUANTILE = 0.9
 """The worst decile of per-trial ratios is reported as their 90th percentile: one trial in ten
 is worse than it."""
 
+TIE_RTOL = 1e-9
+"""Per-trial ratios within this of 1 are ties for ``P(improve)``: the same schedule run by two
+compiled twins (or on two CPUs) differs in the last bits, which is not a win (the tolerance of
+the project's float pins)."""
+
 
 def trial_ratios(values: np.ndarray, base: np.ndarray) -> np.ndarray:
     """Per-trial ratios ``values / base`` (n, ...) of paired per-trial scores. A trial lost by
@@ -212,8 +217,8 @@ def bootstrap_median(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
 class PerTrialComparison:
     """How a method compares with a baseline trial by trial (each array (K,) over metrics):
     the median per-trial ratio with its percentile-bootstrap interval, P(improve) (the share
-    of trials with a ratio below 1, ties counted half) and the worst decile (the 90th
-    percentile of the per-trial ratios)."""
+    of trials with a ratio below 1, ties (:data:`TIE_RTOL`) counted half) and the worst
+    decile (the 90th percentile of the per-trial ratios)."""
 
     median: np.ndarray
     median_lo: np.ndarray
@@ -234,7 +239,7 @@ def per_trial_comparison(
         median=np.median(r, axis=0),
         median_lo=lo,
         median_hi=hi,
-        p_improve=np.mean((r < 1.0) + 0.5 * (r == 1.0), axis=0),
+        p_improve=np.mean(np.where(np.abs(r - 1.0) <= TIE_RTOL, 0.5, r < 1.0), axis=0),
         worst_decile=worst,
     )
 
