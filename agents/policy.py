@@ -106,6 +106,11 @@ class PolicyMethod:
         such as the gyro methods' tuning episodes, are not used: a policy is not tuned)."""
         return run_policy(cfg, data, self.path)
 
+    def check(self, cfg: Any) -> None:
+        """``ConfigError`` when the policy cannot run on ``cfg`` (:func:`check_policy`): what
+        a judging run asks of every method before any work."""
+        check_policy(cfg, self.path)
+
     def cache_token(self) -> dict[str, Any]:
         """The policy in a results-cache key (docs/caching.md): the SHA-256 of the model file
         and of the files its settings come from (``config.yaml``, or RL Zoo3's records), the
@@ -153,25 +158,46 @@ def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
         )
 
 
+def _environment_of(path: str) -> tuple[Any, Any, dict[str, Any], int | None]:
+    """The settings of the saved policy at ``path``, its environment's registry entry, the
+    environment options it was trained with, and its number of discrete actions (None for a
+    continuous or tabular one). Reads the settings files and the zip's data record only."""
+    model, settings = policy_config(path)
+    spec = ENVIRONMENTS[settings.env]
+    options = {
+        "action_type": settings.action_type,
+        "period_s": settings.period_s,
+        **spec.kwargs,
+        **dict(getattr(settings, "env_kwargs", {}) or {}),
+    }
+    n_actions = None
+    if model.suffix == ".zip" and settings.action_type == "discrete":
+        n_actions = saved_spaces(model)[2]
+    return settings, spec, options, n_actions
+
+
+def check_policy(cfg: Any, path: str) -> None:
+    """``ConfigError`` when the saved policy at ``path`` cannot run on ``cfg`` (another action
+    set, another problem's config), before any work: its environment's ``policy_check``."""
+    _, spec, options, n_actions = _environment_of(path)
+    if spec.policy_check is None:
+        return
+    try:
+        load_object(spec.policy_check)(options, cfg, n_actions)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
 def run_policy(cfg: Any, data: Any, path: str) -> Any:
     """The saved policy at ``path`` as a method of its problem on ``data`` of ``cfg``: its
     environment's ``policy_runner`` with the options it was trained with (``ConfigError`` when
     the policy does not fit the config, e.g. another action set)."""
     policy = Policy(path)
-    spec = ENVIRONMENTS[policy.cfg.env]
+    settings, spec, options, n_actions = _environment_of(path)
     if spec.policy_runner is None:
-        raise ConfigError(f"{path}: trained on {policy.cfg.env}, which has no policy_runner")
-    options = {
-        "action_type": policy.cfg.action_type,
-        "period_s": policy.cfg.period_s,
-        **spec.kwargs,
-        **dict(getattr(policy.cfg, "env_kwargs", {}) or {}),
-    }
-    n_actions = None
-    if policy.path.suffix == ".zip" and policy.cfg.action_type == "discrete":
-        n_actions = saved_spaces(policy.path)[2]
+        raise ConfigError(f"{path}: trained on {settings.env}, which has no policy_runner")
     runner = load_object(spec.policy_runner)
-    describe = f"{policy.cfg.agent} policy from {path}"
+    describe = f"{settings.agent} policy from {path}"
     try:
         return runner(policy, options, cfg, data, n_actions, describe)
     except ValueError as exc:

@@ -100,11 +100,11 @@ def test_spaces_that_do_not_fit_are_refused_with_both_shapes(tmp_path: Path) -> 
     )  # fmt: skip
     assert result.exit_code == 2 and "[60]" in result.output and "13" in result.output
     assert not out.exists()
-    # a config with another action set than the policy's 11 actions
+    # a config with another action set than the policy's 11 actions: refused before any work
     result = CliRunner().invoke(
         app,
         ["bench", "paper", "--methods", f"policy:{bare}@{ENV}", *SHORT,
          "--set", "adaptive.actions.count=5", "--out", str(out)],
     )  # fmt: skip
-    assert result.exit_code != 0
+    assert result.exit_code == 2 and not out.exists()
     assert "chooses among 11 actions" in result.output and "has 5" in result.output

@@ -304,3 +304,21 @@ def test_on_a_shift_family_the_tuned_methods_tune_on_the_family_it_shifts_from()
     assert ta.families.tuning_family("shift_late_snap_random") == "shift_late_snap_random"
     with pytest.raises(ValueError, match="tune on what their specs name"):
         ta.trial_errors(object(), ["kf"], 2, 0, tuning_cfg=object())
+
+
+def test_a_policy_of_another_action_set_is_refused_before_any_work(tmp_path: Path) -> None:
+    """The policies choose among the default 11 κ; a family whose action set has 5 is refused
+    by the plan (naming the family, the model and both counts), for either problem."""
+    gyro = f"policy:{_bare_gyro_policy(tmp_path)}"
+    plan_judging("redundant_gyros", ["gyro_control"], ["constant", gyro], overrides=SHORT)
+    with pytest.raises(ConfigError, match=r"family gyro_control: .*gyro_ppo\.zip.*among 11 "
+                       r"actions.*\(environment\.actions\) has 5"):  # fmt: skip
+        plan_judging("redundant_gyros", ["gyro_control"], ["constant", gyro],
+                     overrides=[*SHORT, "environment.actions.count=5"])  # fmt: skip
+    shipped = Path(__file__).resolve().parents[1] / "agents" / "zoo" / "best" / "model.zip"
+    ta = ["kf", f"policy:{shipped}"]
+    plan_judging("transfer_alignment", ["steady_random"], ta, trials=2)
+    with pytest.raises(ConfigError, match=r"family steady_random: .*among 11 actions.*"
+                       r"\(adaptive\.actions\) has 5"):  # fmt: skip
+        plan_judging("transfer_alignment", ["steady_random"], ta, trials=2,
+                     overrides=["adaptive.actions.count=5"])  # fmt: skip

@@ -46,6 +46,8 @@ class Environment:
     ``action_type``, ``period_s``, the id's defaults and its ``env_kwargs``), the problem's
     config and data, the policy's number of discrete actions if known, and a description for
     the output's notes; ``ValueError`` when the policy does not fit the config.
+    ``policy_check``: the same refusal before any work, from the options, the config and the
+    number of actions alone (``fn(options, cfg, n_actions)``; the runner calls it too).
     """
 
     id: str  # the Gymnasium id, "namespace/Name-vN"
@@ -61,6 +63,7 @@ class Environment:
     # "module:function" running a saved policy as a method of its problem, if it has one:
     # fn(policy, options, cfg, data, n_actions, describe) → that problem's method output
     policy_runner: str | None = None
+    policy_check: str | None = None  # "module:function": fn(options, cfg, n_actions), ValueError
     defaults: tuple[tuple[str, Any], ...] = ()  # keyword defaults of the id (v4: controls)
     options: tuple[str, ...] = ()  # keywords a training config's env_kwargs may set
 

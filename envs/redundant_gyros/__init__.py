@@ -78,6 +78,7 @@ for _env_id, (_observation, _description) in VERSIONS.items():
             vector_entry_point=VECTOR_ENTRY_POINT,
             sb3_vec_env=SB3_VEC_ENV,
             policy_runner="envs.redundant_gyros.judging:run_policy",
+            policy_check="envs.redundant_gyros.judging:check_policy",
             description=_description,
         )
     )

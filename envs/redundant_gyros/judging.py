@@ -23,6 +23,23 @@ from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.hindsight import Episode
 
 
+def check_policy(
+    options: Mapping[str, Any], cfg: GyrosConfig, n_actions: int | None = None
+) -> None:
+    """Whether a saved policy choosing among ``n_actions`` discrete actions can run on ``cfg``
+    (before any work): ``TypeError`` for another problem's config, ``ValueError`` for another
+    number of actions than the config's action set (``environment.actions``). ``options`` are
+    not needed: every gyro id takes its action set from the config."""
+    if not isinstance(cfg, GyrosConfig):
+        raise TypeError("a gyro policy runs over gyro episodes of a gyro config only")
+    count = cfg.environment.actions.count
+    if n_actions is not None and n_actions != count:
+        raise ValueError(
+            f"the policy chooses among {n_actions} actions, but the config's action set "
+            f"(environment.actions) has {count}"
+        )
+
+
 def run_policy(
     policy: ActingPolicy,
     options: Mapping[str, Any],
@@ -36,16 +53,12 @@ def run_policy(
     ``cfg``. ``TypeError`` for another problem's config or episodes; ``ValueError`` when the
     policy chooses among ``n_actions`` discrete actions and the config's action set has
     another number. ``describe`` is not used (the output is a number per episode)."""
-    if not isinstance(cfg, GyrosConfig) or not all(isinstance(e, Episode) for e in episodes):
+    if not all(isinstance(e, Episode) for e in episodes):
         raise TypeError("a gyro policy runs over gyro episodes of a gyro config only")
+    check_policy(options, cfg, n_actions)
     n = len(episodes)
     # the score is J, whatever the policy was trained on: the cheapest reward
     env = GyroEpisodes(n, cfg, **{**options, "reward": "oracle"})
-    if n_actions is not None and n_actions != env.actions.kappas.size:
-        raise ValueError(
-            f"the policy chooses among {n_actions} actions, but the config's action set "
-            f"(environment.actions) has {env.actions.kappas.size}"
-        )
     for i, ep in enumerate(episodes):
         env.load(i, ep.inputs)
     env.restart(np.arange(n))
@@ -63,4 +76,4 @@ def run_policy(
     return np.where(env.failed, np.inf, j)
 
 
-__all__ = ["run_policy"]
+__all__ = ["check_policy", "run_policy"]

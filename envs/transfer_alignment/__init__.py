@@ -80,6 +80,7 @@ for _id, _obs in ENV_OBSERVATIONS.items():
             vector_entry_point="envs.transfer_alignment.vector:BatchedTransferAlignmentEnv",
             sb3_vec_env="envs.transfer_alignment.sb3:BatchedTransferAlignmentSB3Env",
             policy_runner="envs.transfer_alignment.judging:run_policy",
+            policy_check="envs.transfer_alignment.judging:check_policy",
             description=_DESCRIPTIONS[_obs],
             defaults=(("controls", "kappa"),) if _obs == "v4" else (),
             options=V4_OPTIONS if _obs == "v4" else (),

@@ -25,6 +25,23 @@ from qkf.transfer_alignment.methods.oracle import run_schedule
 from qkf.transfer_alignment.scenario import ScenarioData
 
 
+def check_policy(options: Mapping[str, Any], cfg: Config, n_actions: int | None = None) -> None:
+    """Whether a saved policy of environment ``options`` choosing among ``n_actions`` discrete
+    actions can run on ``cfg`` (before any work): ``TypeError`` for another problem's config,
+    ``ValueError`` for an environment without an observation version or another action set
+    (``adaptive.actions``; v4's ``controls`` make their own moves)."""
+    if not isinstance(cfg, Config):
+        raise TypeError("a transfer-alignment policy runs over transfer-alignment trials only")
+    if options.get("observation") is None:
+        raise ValueError("its environment has no observation version")
+    values = np.asarray(cfg.adaptive.actions.values())
+    if n_actions is not None and options.get("controls") is None and n_actions != values.size:
+        raise ValueError(
+            f"chooses among {n_actions} actions, but the config's action set "
+            f"(adaptive.actions) has {values.size}: a policy trained on another action set"
+        )
+
+
 def run_policy(
     policy: ActingPolicy,
     options: Mapping[str, Any],
@@ -37,19 +54,13 @@ def run_policy(
     ``options``: the environment's (``observation``, ``action_type``, ``period_s``, and
     ``controls``/``base`` for v4). ``TypeError`` for another problem's config or data;
     ``ValueError`` when a policy of ``n_actions`` discrete actions meets another action set."""
-    if not isinstance(cfg, Config) or not isinstance(data, ScenarioData):
+    if not isinstance(data, ScenarioData):
         raise TypeError("a transfer-alignment policy runs over transfer-alignment trials only")
-    observation = options.get("observation")
-    if observation is None:
-        raise ValueError("its environment has no observation version")
+    check_policy(options, cfg, n_actions)
+    observation = str(options["observation"])
     if options.get("controls") is not None:  # v4: the policy makes the filter's moves
-        return _run_moves_policy(policy, options, cfg, data, str(observation), describe)
+        return _run_moves_policy(policy, options, cfg, data, observation, describe)
     values = np.asarray(cfg.adaptive.actions.values())
-    if n_actions is not None and "controls" not in options and n_actions != values.size:
-        raise ValueError(
-            f"chooses among {n_actions} actions, but the config's action set "
-            f"(adaptive.actions) has {values.size}: a policy trained on another action set"
-        )
     actions = ActionMap(values, str(options["action_type"]))
     core = BatchedEpisodes(
         cfg, data.n_trials, "likelihood", float(options["period_s"]), observation=observation
@@ -120,4 +131,4 @@ def _run_moves_policy(
     return out
 
 
-__all__ = ["run_policy"]
+__all__ = ["check_policy", "run_policy"]

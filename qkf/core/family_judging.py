@@ -129,6 +129,7 @@ def plan_judging(
         try:
             cfg = prob.load_config(fam, list(overrides))
             prob.check_workload(cfg, trials)
+            prob.check_methods(cfg, list(specs))
             tuning.append(None if tuned_on == fam else prob.load_config(tuned_on, list(overrides)))
         except ConfigError as exc:
             raise ConfigError(f"family {fam}: {exc}") from None

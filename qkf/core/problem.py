@@ -21,6 +21,8 @@ A problem has:
 - ``seeds``: the benchmark-seed ranges for judging and for tuning (:class:`SeedRanges`);
 - ``max_trials`` and ``check_workload(cfg, trials)``: the largest run it accepts, and the
   refusal (``ConfigError``) of a run too large for memory, before any work;
+- ``check_methods(cfg, specs)``: the refusal of a method that cannot run on a family's config
+  (a method object may offer ``check(cfg)``; ``policy:PATH`` does), before any work;
 - ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed, tuning_cfg=)``: method
   specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials,
   each giving the judged metric per trial: what :mod:`qkf.core.family_judging` compares. The
@@ -127,6 +129,11 @@ class Problem(Protocol):
     def method_labels(self, specs: Sequence[str]) -> list[str]:
         """The labels the method specs are reported under; ``ValueError`` naming a spec that
         cannot be resolved (checked before any work)."""
+        ...
+
+    def check_methods(self, cfg: Any, specs: Sequence[str]) -> None:
+        """``ConfigError`` when a method cannot run on ``cfg`` (a policy of another action
+        set), before any work: each resolved method's ``check(cfg)``, where it has one."""
         ...
 
     def trial_errors(

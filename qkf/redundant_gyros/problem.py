@@ -111,6 +111,13 @@ class RedundantGyros:
         """The labels of :func:`~qkf.redundant_gyros.methods.resolve_gyro_method`."""
         return [label for label, _ in _resolved(specs)]
 
+    def check_methods(self, cfg: Any, specs: Sequence[str]) -> None:
+        """Each method's ``check(cfg)``, where it has one (``policy:PATH``: its action set)."""
+        for _, method in _resolved(specs):
+            check = getattr(method, "check", None)
+            if callable(check):
+                check(cfg)
+
     def trial_errors(
         self,
         cfg: Any,

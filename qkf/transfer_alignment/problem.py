@@ -105,6 +105,14 @@ class TransferAlignment:
 
         return [m.name for m in parse_methods(list(specs))]
 
+    def check_methods(self, cfg: Any, specs: Sequence[str]) -> None:
+        """The methods' settings sections and each method's ``check(cfg)`` (``policy:PATH``: its
+        action set): :func:`~qkf.transfer_alignment.methods.resolve_method_settings`."""
+        from qkf.transfer_alignment.benchmark import parse_methods
+        from qkf.transfer_alignment.methods import resolve_method_settings
+
+        resolve_method_settings(cfg, parse_methods(list(specs)))
+
     def trial_errors(
         self,
         cfg: Any,

@@ -196,8 +196,10 @@ def resolve_method_settings(
 
     :func:`~qkf.transfer_alignment.benchmark.run_benchmark` calls it; a command that loads a
     config and resolves ``--methods`` calls it too, with the config's name, to refuse a bad
-    setting with the file named before it prepares its output.
+    setting with the file named before it prepares its output. A method object that offers
+    ``check(cfg)`` (``policy:PATH``: its action set) is asked too.
     """
+    methods = list(methods)
     claims: dict[str, tuple[type[StrictModel], str]] = {}
     for m in methods:
         try:
@@ -213,7 +215,12 @@ def resolve_method_settings(
                 f"{source}: adaptive.{section}: read by {earlier[1]} as {earlier[0].__name__} "
                 f"and by method {m.name!r} as {model.__name__}; a section has one model"
             )
-    return resolve_sections(cfg, claims, source)
+    resolved = resolve_sections(cfg, claims, source)
+    for m in methods:  # a method object's own refusal (a policy of another action set)
+        check = getattr(m.method, "check", None)
+        if callable(check):
+            check(resolved)
+    return resolved
 
 
 __all__ = [
