@@ -203,16 +203,18 @@ def test_families_card_recomputed_from_trials(tmp_path: Path) -> None:
     assert (study / "steady_random" / "trials.csv").read_bytes() == kept
     assert (study / "ads_mismatch_random" / "trials.csv").read_bytes() == redo
 
-    # --update-entry: the entry's evaluation/ and card.md become the work folder's
+    # --update-entry: the entry's evaluation/ and card.md become the work folder's (the same
+    # work folder: every family is kept, only the evaluation is written again)
     res = runner.invoke(
         app,
-        ["zoo", "evaluate", str(folder), "--work", str(tmp_path / "w2"), "--trials", "2",
-         "--quiet", "--update-entry"],
+        ["zoo", "evaluate", str(folder), "--work", str(work), "--trials", "2", "--quiet",
+         "--update-entry"],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
-    judged = sorted(p.name for p in (tmp_path / "w2" / "evaluation").iterdir())
+    assert "ads_mismatch_random: finished earlier, kept" in res.output
+    judged = sorted(p.name for p in (work / "evaluation").iterdir())
     assert sorted(p.name for p in (folder / "evaluation").iterdir()) == judged
     for name in judged:
-        src = tmp_path / "w2" / "evaluation" / name
+        src = work / "evaluation" / name
         assert (folder / "evaluation" / name).read_bytes() == src.read_bytes()
-    assert (folder / "card.md").read_bytes() == (tmp_path / "w2" / "card.md").read_bytes()
+    assert (folder / "card.md").read_bytes() == (work / "card.md").read_bytes()
