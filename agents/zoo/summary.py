@@ -32,13 +32,11 @@ from qkf.core.io import atomic_write_text
 from qkf.core.stats import (
     bootstrap_rms,
     interquartile_mean,
-    min_verdict_trials,
-    per_trial_comparison,
     percentile_interval,
     ratio_side,
     resample_counts,
 )
-from qkf.core.versus import VersusRow
+from qkf.core.versus import VersusRow, versus_rows
 
 if TYPE_CHECKING:
     from qkf.core.family_judging import JudgePlan
@@ -97,8 +95,6 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
     policies = [m for m in per_trial if m.startswith(f"{entry.name}:s")]
     bases = [b for b in case.baselines if b in per_trial]
 
-    judged = n >= min_verdict_trials(LEVEL)
-
     def row(
         policy: str,
         quantity: str,
@@ -124,18 +120,16 @@ def judge_summary(entry: ZooEntry, case: JudgeCase, trials_csv: Path) -> list[Ju
 
     rows: list[JudgeRow] = []
     share: dict[str, float] = {}
+    # the same resamples as ``counts`` (one seed): the paired comparisons of qkf.core.versus
+    compared = {
+        (v.method, v.other): v
+        for v in versus_rows(case.scenario, per_trial, policies, RESAMPLES, LEVEL, case.seed)
+    }
     for p in policies:
         lo, hi = percentile_interval(reps[p], LEVEL)
         rows.append(row(p, "rms", "", point[p], float(lo), float(hi)))
         for b in bases:
-            lo, hi = percentile_interval(reps[p] / reps[b], LEVEL)
-            per = per_trial_comparison(per_trial[p], per_trial[b], counts, LEVEL)
-            compared = VersusRow(
-                case.scenario, p, b, point[p] / point[b], float(lo), float(hi),
-                float(per.median), float(per.median_lo), float(per.median_hi),
-                float(per.p_improve), float(per.worst_decile), judged,
-            )  # fmt: skip
-            rows += comparison_rows(row, compared)
+            rows += comparison_rows(row, compared[p, b])
         if "kf" in per_trial and "oracle" in per_trial and point["kf"] > point["oracle"]:
             rep_share = (reps["kf"] - reps[p]) / (reps["kf"] - reps["oracle"])
             lo, hi = percentile_interval(rep_share, LEVEL)
@@ -235,8 +229,6 @@ def judging_summary(
     ``median_ratio``, ``trials_won``, ``worst_decile``), and over the seeds ``NAME:IQM``: the
     interquartile mean of the pooled ratios to each baseline with the seeds' range
     (``ratio_range``)."""
-    from qkf.core.versus import versus_rows
-
     policies = [p for p in plan.focus if p.startswith(f"{entry.name}#")]
     bases = [b for b in plan.labels if b not in policies]
     metric = plan.problem.metric.name
