@@ -208,12 +208,47 @@ class OnsetDrift(StrictModel):
         return self
 
 
+class OnsetComponent(StrictModel):
+    """One family of an onset mixture: its name (a preset's, for reports) and its ``onset``
+    (None: constant coefficients, the no-change control)."""
+
+    name: str
+    onset: OnsetDrift | None = None
+
+
 class Scenario(StrictModel):
     dt_s: PositiveFloat = 0.1
     duration_s: PositiveFloat = 600.0
     body_rate: BodyRate = BodyRate()
     faults: list[Fault] = Field(default_factory=list)
     onset: OnsetDrift | None = None  # None: no drawn onset, constant coefficients
+    # a mixture of families (docs/redundant_gyros.md, "Gyro families"): each episode first draws
+    # one component uniformly, from its own stream, then that component's onset; instead of onset
+    onset_mixture: Annotated[list[OnsetComponent], Field(min_length=1)] | None = None
+
+    def onset_specs(self) -> list[OnsetDrift]:
+        """Every onset an episode may draw: ``onset``, or the mixture components' ones."""
+        if self.onset_mixture is None:
+            return [] if self.onset is None else [self.onset]
+        return [c.onset for c in self.onset_mixture if c.onset is not None]
+
+    @model_validator(mode="after")
+    def _one_onset(self) -> Scenario:
+        if self.onset_mixture is None:
+            return self
+        if self.onset is not None:
+            raise ValueError("onset_mixture: cannot stand next to onset (move it into a component)")
+        names = [c.name for c in self.onset_mixture]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"onset_mixture: {', '.join(twice)} named twice")
+        gyros = {o.gyro for o in self.onset_specs()}
+        if len(gyros) > 1:
+            raise ValueError(
+                f"onset_mixture: the components' onsets are on gyros {', '.join(sorted(gyros))}; "
+                "one gyro for all (the calibrated one)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _fits(self) -> Scenario:
@@ -400,6 +435,9 @@ class GyrosConfig(ProblemConfig):
                 raise ValueError(f"scenario.faults.{i}.t_s: after the end of the run")
         if self.scenario.onset is not None:
             check("scenario.onset.gyro", self.scenario.onset.gyro)
+        for i, c in enumerate(self.scenario.onset_mixture or []):
+            if c.onset is not None:
+                check(f"scenario.onset_mixture.{i}.onset.gyro", c.onset.gyro)
         if self.calibration.gyro is not None:
             check("calibration.gyro", self.calibration.gyro)
         for gid in self.calibration.triad or []:

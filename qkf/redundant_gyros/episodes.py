@@ -29,6 +29,7 @@ from qkf.redundant_gyros.scenario import (
     log_uniform,
     onset_generator,
     onset_sds,
+    trial_onset,
     truth,
 )
 
@@ -61,8 +62,9 @@ class EpisodeSampler:
         self._truth = truth(unit, sc.faults, t)
         self._clean = unit.readings(self._truth.coeffs, self.rate)  # (E, n), shared truth
         self._sd = unit.noise * self._truth.noise_factor  # (E, n)
-        self._onset_gyro = None if sc.onset is None else unit.index(sc.onset.gyro)
-        self._onset_sd = None if sc.onset is None else onset_sds(sc.onset)
+        specs = sc.onset_specs()  # one gyro for all of a mixture's (the config checks it)
+        self._onset_gyro = unit.index(specs[0].gyro) if specs else None
+        self._onset_sds = {id(o): onset_sds(o) for o in specs}
         self._sqrt_dt = np.sqrt(np.diff(t, prepend=t[0]))
         s = self.target.start
         dt = np.diff(t[max(s - 1, 0) :])
@@ -77,15 +79,16 @@ class EpisodeSampler:
         """The episode of the simulation seeded with ``draw`` (trial 0 of
         :func:`~qkf.redundant_gyros.scenario.simulate`)."""
         unit, t, s, gyro = self.unit, self.t, self.target.start, self.setup.gyro
-        onset = self.cfg.scenario.onset
+        onset = trial_onset(self.cfg.scenario, draw, 0)  # a mixture's component's, if any
         clean, coeffs_cal, onset_s = self._clean, self._truth.coeffs[:, gyro], None
         noise_factor = 1.0
-        if onset is not None and self._onset_gyro is not None and self._onset_sd is not None:
+        if onset is not None and self._onset_gyro is not None:
             g = self._onset_gyro
+            step_sd, walk_sd = self._onset_sds[id(onset)]
             lo, hi = onset.onset_s
             rng = onset_generator(draw, 0)
             onset_s, step, eps = _onset_numbers(rng, lo, hi, t.size)
-            step = step * self._onset_sd[0]
+            step = step * step_sd
             scale = log_uniform(rng, onset.drift_scale)  # draw_onset's order
             noise_factor = log_uniform(rng, onset.noise_factor)
             k_walk = 0 if onset.drift_from == "start" else first_epoch(t, onset_s)
@@ -93,7 +96,7 @@ class EpisodeSampler:
             clean = clean.copy()
             _onset_readings(
                 self._truth.coeffs[:, g], first_epoch(t, onset_s), step, eps, self._sqrt_dt,
-                self._onset_sd[1], scale, k_walk, unit.w[g], unit.u[g], unit.v[g], self.rate,
+                walk_sd, scale, k_walk, unit.w[g], unit.u[g], unit.v[g], self.rate,
                 c, clean[:, g],
             )  # fmt: skip
             if g == gyro:

@@ -18,7 +18,7 @@ import numpy as np
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.fdi import Detectors, FdiResult, run_fdi
 from qkf.redundant_gyros.geometry import GyroUnit, build_unit
-from qkf.redundant_gyros.scenario import GyroData, epochs, first_epoch, simulate
+from qkf.redundant_gyros.scenario import GyroData, epochs, first_epoch, simulate, trial_onset
 from qkf.redundant_gyros.threecross import NO_GYRO
 from qkf.redundant_gyros.ukf import (
     CalibrationRecord,
@@ -74,7 +74,8 @@ def fault_target(cfg: GyrosConfig, unit: GyroUnit, t: np.ndarray) -> Target:
     unknown to the filter). ``ValueError`` if there is none."""
     cal = cfg.calibration
     faults = cfg.scenario.faults
-    onset = cfg.scenario.onset
+    specs = cfg.scenario.onset_specs()  # an onset mixture's are all on one gyro
+    onset = specs[0] if specs else None
     if cal.gyro is None and not faults and onset is None:
         raise ValueError(
             "no gyro to calibrate: the scenario has no fault and calibration.gyro is not set"
@@ -120,6 +121,8 @@ def simulate_run(cfg: GyrosConfig, seed: int | None = None) -> GyroData:
     sc = cfg.scenario
     t = epochs(sc.duration_s, sc.dt_s)
     s = cfg.run.seed if seed is None else seed
+    if sc.onset_mixture is not None:  # trial 0's component
+        return simulate(unit, sc.body_rate, sc.faults, t, s, [0], onsets=[trial_onset(sc, s, 0)])
     return simulate(unit, sc.body_rate, sc.faults, t, s, [0], sc.onset)
 
 

@@ -22,9 +22,11 @@ from qkf.core.problem import Families, JudgedMetric, SeedRanges
 from qkf.core.registry import Registry
 from qkf.redundant_gyros.config import MAX_CHUNK_TRIAL_EPOCHS, MAX_TRIALS, epochs_of
 
-FAMILIES: tuple[str, ...] = ("gyro_noise_levels", "five_gyros_onset_drift")
+FAMILIES: tuple[str, ...] = ("gyro_noise_levels", "five_gyros_onset_drift", "gyro_mixture")
 """The gyro families with a change (presets of configs/redundant_gyros/; docs/redundant_gyros.md,
-"Gyro families")."""
+"Gyro families"), the last the training mixture of the others and the control."""
+MIXTURE = "gyro_mixture"
+"""Each episode one of the noise levels, the onset and drift, or the control, drawn uniformly."""
 CONTROL_FAMILIES: tuple[str, ...] = ("gyro_control",)
 """Nothing changes: constant coefficients, the assumed noise."""
 SHIFT_FAMILIES: tuple[str, ...] = ("gyro_shift_noise_levels",)
@@ -54,6 +56,7 @@ class RedundantGyros:
         judged=FAMILIES,
         control=CONTROL_FAMILIES,
         shift=SHIFT_FAMILIES,
+        mixture=MIXTURE,
         shift_tuned_on="gyro_noise_levels",
     )
     metric = JudgedMetric(
@@ -162,6 +165,7 @@ __all__ = [
     "CONTROL_FAMILIES",
     "ENV_IDS",
     "FAMILIES",
+    "MIXTURE",
     "PROBLEM",
     "SHIFT_FAMILIES",
     "TUNING_EPISODES",

@@ -17,6 +17,10 @@ the onset gyro's coefficients at that time and a random walk of them, from
 ``default_rng([s, k, ONSET_STREAM])``: a stream of its own, so the noise of trial ``k`` is the
 same with the option on or off, and a scenario without it is simulated exactly as before. The
 truth then differs between trials: ``GyroData.coeffs`` is (B, E, n, 4) instead of (E, n, 4).
+
+A scenario with an ``onset_mixture`` first draws each trial's component, uniformly, from
+``default_rng([s, k, MIXTURE_STREAM])`` (:func:`trial_onset`), then that component's onset as
+above (a component without one: constant coefficients, ``onset_s`` NaN).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qkf.core.units import DEG
-from qkf.redundant_gyros.config import BodyRate, Fault, OnsetDrift
+from qkf.redundant_gyros.config import BodyRate, Fault, OnsetDrift, Scenario
 from qkf.redundant_gyros.geometry import GyroUnit
 
 
@@ -115,6 +119,28 @@ def truth(unit: GyroUnit, faults: Sequence[Fault], t: np.ndarray) -> Truth:
 
 ONSET_STREAM = 0x0115E7
 """Third word of the seed of a trial's onset draws (its noise has two words)."""
+MIXTURE_STREAM = 0x3117C5
+"""Third word of the seed of a trial's onset-mixture component (a stream apart from the onset's,
+so a component draws the onset it draws as a preset of its own)."""
+
+
+def mixture_component(scenario: Scenario, seed: int, trial: int) -> int | None:
+    """Index of the ``onset_mixture`` component trial ``trial`` of seed ``seed`` draws (uniform,
+    from ``default_rng([seed, trial, MIXTURE_STREAM])``); None without a mixture."""
+    if scenario.onset_mixture is None:
+        return None
+    rng = np.random.default_rng([seed, int(trial), MIXTURE_STREAM])
+    return int(rng.integers(len(scenario.onset_mixture)))
+
+
+def trial_onset(scenario: Scenario, seed: int, trial: int) -> OnsetDrift | None:
+    """The onset trial ``trial`` of seed ``seed`` draws: ``scenario.onset``, or that of its
+    mixture component (:func:`mixture_component`)."""
+    i = mixture_component(scenario, seed, trial)
+    if i is None:
+        return scenario.onset
+    assert scenario.onset_mixture is not None
+    return scenario.onset_mixture[i].onset
 
 
 def onset_generator(seed: int, trial: int) -> np.random.Generator:
@@ -203,11 +229,15 @@ def simulate(
     seed: int,
     trial_ids: Sequence[int] | np.ndarray,
     onset: OnsetDrift | None = None,
+    onsets: Sequence[OnsetDrift | None] | None = None,
 ) -> GyroData:
     """Readings of the trials ``trial_ids`` (see the module docstring); ``onset`` draws each
-    trial's onset, step and walk (then ``coeffs`` is per trial, (B, E, n, 4))."""
+    trial's onset, step and walk (then ``coeffs`` is per trial, (B, E, n, 4)); ``onsets``, one
+    per trial (an onset mixture: :func:`trial_onset`), replaces it."""
     rate = body_rate(profile, t)
     tr = truth(unit, faults, t)
+    if onsets is not None:
+        return _simulate_onsets(unit, tr, rate, t, seed, trial_ids, list(onsets))
     coeffs = tr.coeffs
     onset_s = None
     if onset is not None:
@@ -221,6 +251,42 @@ def simulate(
         g = unit.index(onset.gyro)
         sd = np.broadcast_to(sd, (len(draws), *sd.shape)).copy()
         for row, d in enumerate(draws):
+            sd[row, :, g] = sd[row, :, g] * d.noise_factor
+    meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
+    for i, k0, offset in tr.stuck:
+        held = meas[:, max(k0 - 1, 0), i] + offset
+        meas[:, k0:, i] = held[:, None]
+    return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
+
+
+def _simulate_onsets(
+    unit: GyroUnit,
+    tr: Truth,
+    rate: np.ndarray,
+    t: np.ndarray,
+    seed: int,
+    trial_ids: Sequence[int] | np.ndarray,
+    specs: list[OnsetDrift | None],
+) -> GyroData:
+    """:func:`simulate` with each trial's own onset spec (None: none): per trial what the
+    single-spec path does, the same draws in the same order."""
+    if len(specs) != len(trial_ids):
+        raise ValueError(f"{len(specs)} onsets for {len(trial_ids)} trials")
+    draws = [
+        None if s is None else draw_onset(s, t, onset_generator(seed, int(k)))
+        for s, k in zip(specs, trial_ids, strict=True)
+    ]
+    per_trial = zip(specs, draws, strict=True)
+    coeffs = np.stack(
+        [tr.coeffs if s is None or d is None else apply_onset(tr.coeffs, unit.index(s.gyro), d, t)
+         for s, d in per_trial]
+    )  # fmt: skip
+    onset_s = np.array([math.nan if d is None else d.onset_s for d in draws])
+    clean = unit.readings(coeffs, rate)
+    sd = np.broadcast_to(unit.noise * tr.noise_factor, (len(specs), t.size, unit.n)).copy()
+    for row, (s, d) in enumerate(zip(specs, draws, strict=True)):
+        if s is not None and d is not None and s.noise_factor is not None:
+            g = unit.index(s.gyro)
             sd[row, :, g] = sd[row, :, g] * d.noise_factor
     meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
     for i, k0, offset in tr.stuck:
