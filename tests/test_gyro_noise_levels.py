@@ -79,12 +79,15 @@ def test_ranges_are_checked() -> None:
         load_config(FAMILY, ["scenario.onset.noise_factor=[0,1]"])
 
 
-@pytest.mark.parametrize("family", [FAMILY, "gyro_shift_noise_levels", "gyro_control"])
+@pytest.mark.parametrize(
+    "family", [FAMILY, "gyro_shift_noise_levels", "gyro_control", "gyro_mixture"]
+)
 def test_sampler_episodes_are_the_simulations(family: str) -> None:
     cfg = load_config(family, SHORT)
     sampler = EpisodeSampler(cfg)
     unit, s, g = build_unit(cfg), sampler.target.start, sampler.setup.gyro
-    for seed in (3, 4):
+    # seeds 3 … 10 draw every component of the mixture (tests/test_gyro_mixture.py)
+    for seed in range(3, 11):
         ep = sampler.draw(seed)
         d = simulate_run(cfg, seed=seed)
         truth = d.trial_coeffs(0)

@@ -252,10 +252,7 @@ def simulate(
         sd = np.broadcast_to(sd, (len(draws), *sd.shape)).copy()
         for row, d in enumerate(draws):
             sd[row, :, g] = sd[row, :, g] * d.noise_factor
-    meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
-    for i, k0, offset in tr.stuck:
-        held = meas[:, max(k0 - 1, 0), i] + offset
-        meas[:, k0:, i] = held[:, None]
+    meas = _measured(clean, sd, tr, seed, trial_ids, t.size, unit.n)
     return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
 
 
@@ -288,8 +285,22 @@ def _simulate_onsets(
         if s is not None and d is not None and s.noise_factor is not None:
             g = unit.index(s.gyro)
             sd[row, :, g] = sd[row, :, g] * d.noise_factor
-    meas = clean - sd * trial_noise(seed, trial_ids, t.size, unit.n)
+    meas = _measured(clean, sd, tr, seed, trial_ids, t.size, unit.n)
+    return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
+
+
+def _measured(
+    clean: np.ndarray,
+    sd: np.ndarray,
+    tr: Truth,
+    seed: int,
+    trial_ids: Sequence[int] | np.ndarray,
+    n_epochs: int,
+    n: int,
+) -> np.ndarray:
+    """Readings (B, E, n): ``clean − sd · ε`` with the trials' noise, then the stuck gyros held."""
+    meas = clean - sd * trial_noise(seed, trial_ids, n_epochs, n)
     for i, k0, offset in tr.stuck:
         held = meas[:, max(k0 - 1, 0), i] + offset
         meas[:, k0:, i] = held[:, None]
-    return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
+    return meas
