@@ -13,6 +13,7 @@ from scipy import stats
 from qkf.core.config import ConfigError
 from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros.hindsight import env_draw, episode
+from qkf.redundant_gyros.methods import GYRO_METHODS, with_mixture
 from qkf.redundant_gyros.problem import CONTROL_FAMILIES, FAMILIES, PROBLEM, SHIFT_FAMILIES
 from qkf.redundant_gyros.scenario import mixture_component
 
@@ -80,3 +81,26 @@ def test_seeds_3_to_10_draw_every_component() -> None:
 def test_a_bad_mixture_is_refused_on_load(overrides: list[str], message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load_config(MIXTURE, overrides)
+
+
+def test_the_mixed_methods_tune_on_the_mixture_in_the_judged_config() -> None:
+    """``constant-mixed`` is ``constant`` given the tuning episodes of the judged config with the
+    mixture's onsets (its duration and filter kept), whatever tuning episodes it is handed; on
+    the mixture itself it is ``constant``."""
+    cfg = load_config("gyro_shift_noise_levels", SHORT)
+    mixed = with_mixture(cfg)
+    assert mixed.scenario.onset is None and mixed.scenario.duration_s == 160
+    assert mixed.scenario.onset_mixture == load_config(MIXTURE).scenario.onset_mixture
+    assert mixed.calibration == cfg.calibration and mixed.environment == cfg.environment
+    episodes = PROBLEM.simulate(cfg, 5_000_000, range(3))
+    got = GYRO_METHODS["constant-mixed"](cfg, episodes, PROBLEM.tuning(cfg))
+    want = GYRO_METHODS["constant"](cfg, episodes, PROBLEM.tuning(mixed))
+    np.testing.assert_array_equal(got, want)
+    own = GYRO_METHODS["constant"](cfg, episodes, PROBLEM.tuning(cfg))
+    assert not np.array_equal(got, own)  # the shift's own best κ is another
+    mix = load_config(MIXTURE, SHORT)
+    on_mix = PROBLEM.simulate(mix, 5_000_000, range(3))
+    np.testing.assert_array_equal(
+        GYRO_METHODS["clock-mixed"](mix, on_mix, []),
+        GYRO_METHODS["clock"](mix, on_mix, PROBLEM.tuning(mix)),
+    )

@@ -16,6 +16,10 @@ judged ones. It returns ``J`` per judged episode (``inf`` where the filter fails
 ``clock``           the tuned clock: κ_a, then κ_c from a switch time (:mod:`.clock`)
 ``nis-adaptive``    innovation-based adaptive κ, its gain, half-life and start tuned
                     (:mod:`.nis_adaptive`)
+``constant-mixed``  ``constant``, ``clock``, ``nis-adaptive`` tuned instead on the episodes of
+``clock-mixed``     the training mixture (``gyro_mixture``'s onsets in the judged config:
+``nis-adaptive-``   :func:`with_mixture`): like for like with a policy trained on the mixture
+``mixed``           (the ``-mixed`` twins of transfer alignment)
 ``level-informed``  each episode's own best constant κ: knows the episode's noise levels
                     (a bound, not a causal method)
 ``hindsight``       each episode's best schedule found with the truth (:func:`~.hindsight.search`;
@@ -102,6 +106,51 @@ def run_hindsight(
     return np.array([hs.search(ep).score for ep in episodes])
 
 
+MIXTURE_PRESET = "gyro_mixture"
+"""The preset whose ``onset_mixture`` the ``-mixed`` methods tune on."""
+
+
+def with_mixture(cfg: GyrosConfig) -> GyrosConfig:
+    """``cfg`` with the onsets of the training mixture (:data:`MIXTURE_PRESET`) in place of its
+    own, everything else (unit, filter, duration, actions) kept: what the ``-mixed`` methods
+    tune on. ``ConfigError`` when the mixture's gyro is not in ``cfg``'s unit."""
+    from qkf.redundant_gyros import load_config
+
+    mixture = load_config(MIXTURE_PRESET).scenario.onset_mixture
+    known = {g.id for g in cfg.unit.gyros}
+    gyros = {c.onset.gyro for c in mixture or [] if c.onset is not None}
+    if not gyros <= known:
+        raise ConfigError(
+            f"the training mixture's onsets are on gyro {', '.join(sorted(gyros))}, not in this "
+            f"unit ({', '.join(sorted(known))}): the -mixed methods cannot tune on it"
+        )
+    scenario = cfg.scenario.model_copy(update={"onset": None, "onset_mixture": mixture})
+    return cfg.model_copy(update={"scenario": scenario})
+
+
+def _tuned_on_mixture(method: GyroMethod) -> GyroMethod:
+    """``method`` tuned on the tuning episodes of :func:`with_mixture` (the same seeds as every
+    tuned method's: ``RedundantGyros.tuning``), whatever family it is judged on."""
+
+    def run(
+        cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+    ) -> np.ndarray:
+        from qkf.redundant_gyros.problem import PROBLEM
+
+        return method(cfg, episodes, PROBLEM.tuning(with_mixture(cfg)))
+
+    run.__doc__ = f"{method.__name__}, tuned on the training mixture's episodes."
+    return run
+
+
+for _name, _method in (
+    ("constant", run_constant),
+    ("clock", run_clock),
+    ("nis-adaptive", run_nis_adaptive),
+):
+    GYRO_METHODS.register(f"{_name}-mixed", _tuned_on_mixture(_method))
+
+
 def resolve_gyro_method(spec: str) -> tuple[str, GyroMethod]:
     """``(label, method)`` of a method spec (module docstring); ``ValueError`` naming the spec
     and the known names for one that cannot be resolved. A factory's method may offer a
@@ -133,4 +182,5 @@ __all__ = [
     "run_hindsight",
     "run_level_informed",
     "run_nis_adaptive",
+    "with_mixture",
 ]
