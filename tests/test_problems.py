@@ -300,10 +300,26 @@ def test_on_a_shift_family_the_tuned_methods_tune_on_the_family_it_shifts_from()
     }
     np.testing.assert_allclose(got, tuned[id(source)], rtol=1e-12)
     assert not np.allclose(got, tuned[id(shift)])  # tuned on the shift, another κ
-    ta = PROBLEMS["transfer_alignment"]
-    assert ta.families.tuning_family("shift_late_snap_random") == "shift_late_snap_random"
-    with pytest.raises(ValueError, match="tune on what their specs name"):
-        ta.trial_errors(object(), ["kf"], 2, 0, tuning_cfg=object())
+
+
+def test_transfer_alignment_shift_families_tune_on_the_mixture_like_the_mixed_twins() -> None:
+    """Judged on a shift family, ``kf-tuned`` tunes on the training mixture's scenario: its
+    errors are those of ``kf-tuned-mixed`` on the same trials; ``kf`` is untouched."""
+    short = ["scenario.duration_s=900", "run.settled_s=300", "adaptive.tuned.trials=2"]
+    specs = ["kf", "kf-tuned", "kf-tuned-mixed"]
+    plan = plan_judging(
+        "transfer_alignment", ["shift_late_snap_random"], specs, trials=2, overrides=short
+    )
+    assert plan.tuning_configs[0] == PROBLEMS["transfer_alignment"].load_config(
+        "mixed_random", short
+    )
+    errors = plan.problem.trial_errors(
+        plan.configs[0], plan.specs, 2, plan.seed, tuning_cfg=plan.tuning_configs[0]
+    )
+    np.testing.assert_array_equal(errors["kf-tuned"], errors["kf-tuned-mixed"])
+    own = plan.problem.trial_errors(plan.configs[0], ["kf", "kf-tuned"], 2, plan.seed)
+    np.testing.assert_array_equal(own["kf"], errors["kf"])
+    assert not np.array_equal(own["kf-tuned"], errors["kf-tuned"])  # tuned on the shift itself
 
 
 def test_a_policy_of_another_action_set_is_refused_before_any_work(tmp_path: Path) -> None:

@@ -63,7 +63,11 @@ class TransferAlignment:
     description = "in-orbit calibration of gyros against a master's attitude reference"
     env_ids = ENV_IDS
     families = Families(
-        judged=FAMILIES, control=("steady_random",), shift=SHIFT_FAMILIES, mixture="mixed_random"
+        judged=FAMILIES,
+        control=("steady_random",),
+        shift=SHIFT_FAMILIES,
+        mixture="mixed_random",
+        shift_tuned_on="mixed_random",
     )
     metric = JudgedMetric(
         "state_settled",
@@ -123,14 +127,30 @@ class TransferAlignment:
         tuning_cfg: Any = None,
     ) -> dict[str, np.ndarray]:
         """``state_settled`` per trial of each method of a
-        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. ``tuning_cfg`` must be
-        None: each method's spec says what it tunes on (``-mixed``: the mixture)."""
+        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. With ``tuning_cfg`` (a
+        shift family: the training mixture, ``Families.shift_tuned_on``) every method that tunes
+        on the judged config (it has a ``prepare``) tunes on ``tuning_cfg``'s scenario instead,
+        as its ``-mixed`` twin does (:class:`~.methods.on_mixture.TunedOnScenario`); the
+        ``-mixed`` twins themselves are unchanged."""
+        from qkf.transfer_alignment.benchmark import parse_methods
+        from qkf.transfer_alignment.methods import NamedMethod
+        from qkf.transfer_alignment.methods.on_mixture import TunedOnMixture, TunedOnScenario
+
+        named = parse_methods(list(specs))
         if tuning_cfg is not None:
-            raise ValueError("transfer alignment's methods tune on what their specs name")
+            named = [
+                NamedMethod(
+                    m.name, TunedOnScenario(m.method, tuning_cfg.scenario, tuning_cfg.name), m.spec
+                )
+                if callable(getattr(m.method, "prepare", None))
+                and not isinstance(m.method, TunedOnMixture)
+                else m
+                for m in named
+            ]
         from qkf.transfer_alignment.benchmark import run_benchmark
         from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
-        res = run_benchmark(cfg, list(specs), trials, seed, progress=progress)
+        res = run_benchmark(cfg, named, trials, seed, progress=progress)
         j = METRIC_COLUMNS.index(self.metric.name)
         return {m.name: np.asarray(m.trial_values)[:, j] for m in res.methods}
 

@@ -93,3 +93,47 @@ class TunedOnMixture:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return self.prepare(cfg)(cfg, data)
+
+
+@dataclass(frozen=True)
+class TunedOnScenario:
+    """``base`` tuned on another family's scenario (``tuned_on``, its name): :meth:`prepare`
+    tunes it on the judged config with that scenario, at the judged step and duration (the
+    :func:`mixture_config` rule with any family's scenario), and runs what it found on the
+    judged data. What ``qkf judge`` makes of a tuned method on a shift family
+    (:meth:`~qkf.transfer_alignment.problem.TransferAlignment.trial_errors`)."""
+
+    base: Method
+    scenario: Scenario
+    tuned_on: str
+
+    def prepare(self, cfg: Config) -> Method:
+        update = {"dt_s": cfg.scenario.dt_s, "duration_s": cfg.scenario.duration_s}
+        other = cfg.model_copy(update={"scenario": self.scenario.model_copy(update=update)})
+        return TunedElsewhere(prepare(self.base, other), self.tuned_on)
+
+    def cache_token(self) -> Any:
+        from qkf.core.results_cache import describe
+
+        return {
+            "tuned_on": self.tuned_on,
+            "scenario": self.scenario.model_dump(mode="json"),
+            "base": describe(self.base),
+        }
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        return self.prepare(cfg)(cfg, data)
+
+
+@dataclass(frozen=True)
+class TunedElsewhere:
+    """A method prepared on another family's scenario: runs it and says so in its notes."""
+
+    method: Method
+    tuned_on: str
+
+    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
+        out = self.method(cfg, data)
+        for key, note in out.notes.items():
+            out.notes[key] = f"{note} [tuned on {self.tuned_on}]"
+        return out
