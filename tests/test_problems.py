@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from envs import ENVIRONMENTS
 from qkf.cli import app
 from qkf.core.config import ConfigError
-from qkf.core.family_judging import plan_judging
+from qkf.core.family_judging import plan_judging, versus_markdown
 from qkf.core.problem import PROBLEMS, Problem, problem_of_env
 from qkf.core.stats import resample_counts
 from qkf.core.versus import paired_verdict, versus_rows
@@ -289,6 +289,9 @@ def test_on_a_shift_family_the_tuned_methods_tune_on_the_family_it_shifts_from()
     )  # fmt: skip
     assert plan.tuning_configs[0] is None
     assert plan.tuning_configs[1] == load_gyros("gyro_noise_levels", SHORT)
+    control, shifted = versus_markdown(plan, []).split("## gyro_shift_noise_levels")
+    assert "tuned on `gyro_noise_levels`'s tuning trials" in shifted  # versus.md says so
+    assert "tuning trials" not in control
     prob = plan.problem
     shift = plan.configs[1]
     source = plan.tuning_configs[1]

@@ -183,10 +183,15 @@ def versus_markdown(plan: JudgePlan, rows: Sequence[VersusRow]) -> str:
         "better. A verdict needs both intervals on the same side of 1.",
     ]
     for fam in plan.families:
+        lines += ["", f"## {fam}", ""]
+        tuned_on = plan.problem.families.tuning_family(fam)
+        if tuned_on != fam:  # a shift family: say what the tuned labels stand for
+            lines += [
+                f"A shift family: the tuned methods tuned on `{tuned_on}`'s tuning trials, "
+                "never on this family (their labels are unchanged).",
+                "",
+            ]
         lines += [
-            "",
-            f"## {fam}",
-            "",
             f"| method ÷ other | RMS ratio [{pct}] | median ratio [{pct}] | P(improve) | "
             "worst decile | verdict |",
             "|---|---|---|---|---|---|",
