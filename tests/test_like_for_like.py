@@ -14,7 +14,7 @@ from qkf.transfer_alignment.methods.budgets import tuning_budgets
 from qkf.transfer_alignment.methods.fixed import FixedKappa
 from qkf.transfer_alignment.methods.on_mixture import (
     TRAINING_MIXTURE,
-    MixtureTuned,
+    TunedElsewhere,
     mixture_config,
 )
 from qkf.transfer_alignment.scenario import simulate
@@ -63,7 +63,7 @@ def test_mixed_variant_tunes_on_the_training_mixture_only() -> None:
     assert shift.scenario.truth_prior_scale == 2.0
     assert mixture_config(shift).scenario.truth_prior_scale == 1.0
     prepared = prepare(METHODS["kf-tuned-mixed"], cfg)
-    assert isinstance(prepared, MixtureTuned) and isinstance(prepared.method, FixedKappa)
+    assert isinstance(prepared, TunedElsewhere) and isinstance(prepared.method, FixedKappa)
     assert prepared.method == prepare(METHODS["kf-tuned"], mix)
     data = simulate(cfg, SEED, 2)
     out = prepared(cfg, data)

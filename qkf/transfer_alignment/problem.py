@@ -132,9 +132,10 @@ class TransferAlignment:
         on the judged config (it has a ``prepare``) tunes on ``tuning_cfg``'s scenario instead,
         as its ``-mixed`` twin does (:class:`~.methods.on_mixture.TunedOnScenario`); the
         ``-mixed`` twins themselves are unchanged."""
-        from qkf.transfer_alignment.benchmark import parse_methods
+        from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
         from qkf.transfer_alignment.methods import NamedMethod
         from qkf.transfer_alignment.methods.on_mixture import TunedOnMixture, TunedOnScenario
+        from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
         named = parse_methods(list(specs))
         if tuning_cfg is not None:
@@ -147,8 +148,6 @@ class TransferAlignment:
                 else m
                 for m in named
             ]
-        from qkf.transfer_alignment.benchmark import run_benchmark
-        from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
         res = run_benchmark(cfg, named, trials, seed, progress=progress)
         j = METRIC_COLUMNS.index(self.metric.name)

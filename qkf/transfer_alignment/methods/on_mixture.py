@@ -41,44 +41,39 @@ def _mixture_scenario() -> Scenario:
     return scenario
 
 
-def mixture_config(cfg: Config) -> Config:
-    """``cfg`` with the training mixture's scenario (its laws of events, noise and truth) in
-    place of its own, at the judged run's step and duration; the filter and every other
-    section stay the judged config's."""
+def with_scenario(cfg: Config, scenario: Scenario) -> Config:
+    """``cfg`` with ``scenario`` (its laws of events, noise and truth) in place of its own, at
+    the judged run's step and duration; the filter and every other section stay ``cfg``'s."""
     update = {"dt_s": cfg.scenario.dt_s, "duration_s": cfg.scenario.duration_s}
-    return cfg.model_copy(update={"scenario": _mixture_scenario().model_copy(update=update)})
+    return cfg.model_copy(update={"scenario": scenario.model_copy(update=update)})
+
+
+def mixture_config(cfg: Config) -> Config:
+    """``cfg`` with the training mixture's scenario in place of its own (:func:`with_scenario`)."""
+    return with_scenario(cfg, _mixture_scenario())
 
 
 @dataclass(frozen=True)
-class MixtureTuned:
-    """A method prepared on the training mixture: runs it and says so in its notes."""
+class TunedElsewhere:
+    """A method prepared on another family's scenario (``tuned_on`` says which): runs it and
+    says so in its notes."""
 
     method: Method
+    tuned_on: str = f"the training mixture {TRAINING_MIXTURE}"
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         out = self.method(cfg, data)
         for key, note in out.notes.items():
-            out.notes[key] = f"{note} [tuned on the training mixture {TRAINING_MIXTURE}]"
+            out.notes[key] = f"{note} [tuned on {self.tuned_on}]"
         return out
 
 
-@dataclass(frozen=True)
-class TunedOnMixture:
-    """The ``-mixed`` variant of a tunable method ``base`` (named ``name``): :meth:`prepare`
-    tunes ``base`` on :func:`mixture_config`; the prepared method runs on the judged data."""
+class _BaseSettings:
+    """The wrapped method's settings declaration (methods.base.uses_settings) is the
+    wrapper's too, so the benchmark resolves and records the section it reads."""
 
-    name: str
     base: Method
 
-    def prepare(self, cfg: Config) -> Method:
-        return MixtureTuned(prepare(self.base, mixture_config(cfg)))
-
-    def cache_token(self) -> Any:
-        from qkf.core.results_cache import describe
-
-        return {"tuned_on": TRAINING_MIXTURE, "name": self.name, "base": describe(self.base)}
-
-    # the base's settings declaration (methods.base.uses_settings) is the variant's too
     @property
     def settings_section(self) -> Any:
         return getattr(self.base, "settings_section", None)
@@ -91,14 +86,31 @@ class TunedOnMixture:
     def settings_reads(self) -> Any:
         return getattr(self.base, "settings_reads", ())
 
+
+@dataclass(frozen=True)
+class TunedOnMixture(_BaseSettings):
+    """The ``-mixed`` variant of a tunable method ``base`` (named ``name``): :meth:`prepare`
+    tunes ``base`` on :func:`mixture_config`; the prepared method runs on the judged data."""
+
+    name: str
+    base: Method
+
+    def prepare(self, cfg: Config) -> Method:
+        return TunedElsewhere(prepare(self.base, mixture_config(cfg)))
+
+    def cache_token(self) -> Any:
+        from qkf.core.results_cache import describe
+
+        return {"tuned_on": TRAINING_MIXTURE, "name": self.name, "base": describe(self.base)}
+
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return self.prepare(cfg)(cfg, data)
 
 
 @dataclass(frozen=True)
-class TunedOnScenario:
+class TunedOnScenario(_BaseSettings):
     """``base`` tuned on another family's scenario (``tuned_on``, its name): :meth:`prepare`
-    tunes it on the judged config with that scenario, at the judged step and duration (the
+    tunes it on :func:`with_scenario` (the judged config with that scenario: the
     :func:`mixture_config` rule with any family's scenario), and runs what it found on the
     judged data. What ``qkf judge`` makes of a tuned method on a shift family
     (:meth:`~qkf.transfer_alignment.problem.TransferAlignment.trial_errors`)."""
@@ -108,9 +120,7 @@ class TunedOnScenario:
     tuned_on: str
 
     def prepare(self, cfg: Config) -> Method:
-        update = {"dt_s": cfg.scenario.dt_s, "duration_s": cfg.scenario.duration_s}
-        other = cfg.model_copy(update={"scenario": self.scenario.model_copy(update=update)})
-        return TunedElsewhere(prepare(self.base, other), self.tuned_on)
+        return TunedElsewhere(prepare(self.base, with_scenario(cfg, self.scenario)), self.tuned_on)
 
     def cache_token(self) -> Any:
         from qkf.core.results_cache import describe
@@ -123,17 +133,3 @@ class TunedOnScenario:
 
     def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
         return self.prepare(cfg)(cfg, data)
-
-
-@dataclass(frozen=True)
-class TunedElsewhere:
-    """A method prepared on another family's scenario: runs it and says so in its notes."""
-
-    method: Method
-    tuned_on: str
-
-    def __call__(self, cfg: Config, data: ScenarioData) -> MethodOutput:
-        out = self.method(cfg, data)
-        for key, note in out.notes.items():
-            out.notes[key] = f"{note} [tuned on {self.tuned_on}]"
-        return out
