@@ -236,24 +236,14 @@ def simulate(
     per trial (an onset mixture: :func:`trial_onset`), replaces it."""
     rate = body_rate(profile, t)
     tr = truth(unit, faults, t)
+    if onsets is None and onset is not None:  # the same onset law in every trial
+        onsets = [onset] * len(trial_ids)
     if onsets is not None:
         return _simulate_onsets(unit, tr, rate, t, seed, trial_ids, list(onsets))
-    coeffs = tr.coeffs
-    onset_s = None
-    if onset is not None:
-        gyro = unit.index(onset.gyro)
-        draws = [draw_onset(onset, t, onset_generator(seed, int(k))) for k in trial_ids]
-        coeffs = np.stack([apply_onset(tr.coeffs, gyro, d, t) for d in draws])
-        onset_s = np.array([d.onset_s for d in draws])
-    clean = unit.readings(coeffs, rate)  # (E, n), or (B, E, n)
+    clean = unit.readings(tr.coeffs, rate)  # (E, n): the truth every trial shares
     sd = unit.noise * tr.noise_factor  # (E, n)
-    if onset is not None and onset.noise_factor is not None:  # per trial: (B, E, n)
-        g = unit.index(onset.gyro)
-        sd = np.broadcast_to(sd, (len(draws), *sd.shape)).copy()
-        for row, d in enumerate(draws):
-            sd[row, :, g] = sd[row, :, g] * d.noise_factor
     meas = _measured(clean, sd, tr, seed, trial_ids, t.size, unit.n)
-    return GyroData(t=t, meas=meas, rate=rate, coeffs=coeffs, onset_s=onset_s)
+    return GyroData(t=t, meas=meas, rate=rate, coeffs=tr.coeffs, onset_s=None)
 
 
 def _simulate_onsets(
@@ -265,8 +255,9 @@ def _simulate_onsets(
     trial_ids: Sequence[int] | np.ndarray,
     specs: list[OnsetDrift | None],
 ) -> GyroData:
-    """:func:`simulate` with each trial's own onset spec (None: none): per trial what the
-    single-spec path does, the same draws in the same order."""
+    """:func:`simulate` with each trial's own onset spec (None: none): its onset, step and walk
+    from the trial's onset stream (:func:`draw_onset`), its white noise scaled by the drawn
+    factor; ``coeffs`` is per trial, (B, E, n, 4)."""
     if len(specs) != len(trial_ids):
         raise ValueError(f"{len(specs)} onsets for {len(trial_ids)} trials")
     draws = [
