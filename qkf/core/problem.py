@@ -66,8 +66,7 @@ class Families:
     shift_tuned_on: str | None = None
     """The family whose tuning trials the tuned methods tune on when judged on a shift family,
     so that none is told the shift it is judged under (what a policy trained on that family
-    meets there); None: the problem's method specs say it (transfer alignment's ``-mixed``
-    variants tune on the mixture)."""
+    meets there); None: they tune on the shift family's own (a problem without that rule)."""
 
     def tuning_family(self, family: str) -> str:
         """The family whose tuning trials the tuned methods use when judged on ``family``."""
