@@ -50,6 +50,9 @@ def bench(out: Path, methods: str, trials: int) -> None:
 
     args = ["bench", "paper", "--trials", str(trials), "--seed", "9100", "--methods", methods]
     args += ["--set", "scenario.duration_s=900", "--quiet", "--out", str(out / "bench")]
+    # --no-cache: from the results cache every state after the first would read the first
+    # one's numbers back instead of computing them with its own compiled code
+    args += ["--no-cache"]
     app(args, standalone_mode=False)
 
 

@@ -61,3 +61,20 @@ def test_a_row_may_not_take_the_loops_own_names() -> None:
 
     with pytest.raises(ValueError, match="a parameter is named"):
         row_loops(clash, "_row.shape[0]", cache=False)
+
+
+def test_both_loops_and_a_direct_call_share_one_compilation_of_the_row() -> None:
+    """A parallel loop's own index is unsigned; handed on as it is, the row routine (with
+    everything it calls) would be compiled a second time for it."""
+
+    @kernel_jit(cache=False)
+    def double(i: int, x: np.ndarray) -> None:
+        x[i] *= 2.0
+
+    loops = row_loops(double, "x.shape[0]", cache=False)
+    x = np.ones(3)
+    loops.parallel(x)
+    loops.serial(x)
+    loops.row(0, x)
+    np.testing.assert_array_equal(x, [8.0, 4.0, 4.0])
+    assert [str(sig[0]) for sig in double.signatures] == ["int64"]  # type: ignore[attr-defined]

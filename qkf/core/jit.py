@@ -42,6 +42,7 @@ os.environ.setdefault("GOMP_SPINCOUNT", "0")
 
 import llvmlite.binding as ll
 import numba as nb
+import numpy as np
 from numba.core import codegen as _codegen
 
 FASTMATH = {"reassoc", "contract", "arcp"}
@@ -202,7 +203,7 @@ def _parameters(dispatcher: Callable[..., Any]) -> list[str]:
     return list(inspect.signature(dispatcher.py_func).parameters)  # type: ignore[attr-defined]
 
 
-_LOOP_NAMES = frozenset({"_row", "_prange", "_i", "_scratch", "_work"})
+_LOOP_NAMES = frozenset({"_row", "_prange", "_i", "_int64", "_scratch", "_work"})
 """The names the generated loop uses itself; a per-row routine must not take them."""
 
 
@@ -219,7 +220,10 @@ def row_loops(
     ``rows`` is the number of rows, an expression of ``row``'s arguments after the index (for
     example ``"x.shape[0]"``). The loops take those arguments and run
     ``for i in prange(rows): row(i, *args)``, compiled by :func:`parallel_and_serial` (its
-    flags: ``fastmath``, ``cache``). Named tuples of arrays pass as they do into a hand-written
+    flags: ``fastmath``, ``cache``). The index reaches ``row`` as an ``int64`` in both loops:
+    a parallel loop's own index is unsigned, and ``row`` (with everything it calls) would
+    otherwise be compiled twice, once per index type (for the transfer-alignment kernel, about
+    a quarter of a cold compile). Named tuples of arrays pass as they do into a hand-written
     loop; the prange body is the single call on purpose (inside a parfor numba drops writes to
     arrays reached through named-tuple attributes, numba#5872).
 
@@ -243,11 +247,16 @@ def row_loops(
         lines.append(f"    _work = _scratch({', '.join(_parameters(scratch))})")
     lines += [
         f"    for _i in _prange({rows}):",
-        f"        _row(_i, {', '.join(passed)})",
+        f"        _row(_int64(_i), {', '.join(passed)})",
     ]
     code = py_func.__code__
     source = "\n" * (code.co_firstlineno - 1) + "\n".join(lines) + "\n"
-    scope: dict[str, Any] = {"_prange": nb.prange, "_row": row, "_scratch": scratch}
+    scope: dict[str, Any] = {
+        "_prange": nb.prange,
+        "_row": row,
+        "_scratch": scratch,
+        "_int64": np.int64,
+    }
     exec(compile(source, code.co_filename, "exec"), scope)
     loop = scope[f"{py_func.__name__}_rows"]
     loop.__module__ = py_func.__module__
