@@ -27,7 +27,13 @@ import numpy as np
 import envs
 from agents.algorithms import ALGORITHMS, algorithm_class
 from agents.config import TrainConfig
-from agents.policy_sources import policy_config, saved_spaces, settings_files, split_spec
+from agents.policy_sources import (
+    policy_config,
+    saved_spaces,
+    settings_files,
+    split_spec,
+    tabular_action_count,
+)
 from envs import ENVIRONMENTS
 from qkf.core.config import ConfigError
 from qkf.core.registry import load_object
@@ -161,7 +167,8 @@ def _check_saved_model(path: Path, cfg: TrainConfig, obs_size: int) -> None:
 def _environment_of(path: str) -> tuple[Any, Any, dict[str, Any], int | None]:
     """The settings of the saved policy at ``path``, its environment's registry entry, the
     environment options it was trained with, and its number of discrete actions (None for a
-    continuous or tabular one). Reads the settings files and the zip's data record only."""
+    continuous one). Reads the settings files and the zip's data record (a tabular agent's
+    count from its ``.npz``) only."""
     model, settings = policy_config(path)
     spec = ENVIRONMENTS[settings.env]
     options = {
@@ -173,6 +180,8 @@ def _environment_of(path: str) -> tuple[Any, Any, dict[str, Any], int | None]:
     n_actions = None
     if model.suffix == ".zip" and settings.action_type == "discrete":
         n_actions = saved_spaces(model)[2]
+    elif model.suffix == ".npz":  # a tabular agent: its Q table's columns are its actions
+        n_actions = tabular_action_count(model)
     return settings, spec, options, n_actions
 
 

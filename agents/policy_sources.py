@@ -28,6 +28,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from agents.config import TrainConfig, validate_train_config
@@ -117,6 +118,16 @@ def saved_spaces(model: Path) -> tuple[list[int], str, int | None]:
     except (KeyError, TypeError, ValueError):
         raise ConfigError(f"{model}: its data record has no observation or action space") from None
     return shape, "discrete" if discrete else "continuous", n
+
+
+def tabular_action_count(model: Path) -> int:
+    """The number of discrete actions a tabular agent's ``model.npz`` chooses among (the
+    columns of its Q table), read without building the agent."""
+    try:
+        with np.load(model) as saved:
+            return int(saved["n_actions"])
+    except (OSError, KeyError, TypeError, ValueError):
+        raise ConfigError(f"{model}: not a tabular agent's file (no n_actions record)") from None
 
 
 def _train_config(fields: dict[str, Any], source: str) -> TrainConfig:

@@ -123,6 +123,17 @@ def test_train_command_tabular(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert (tmp_path / "model.npz").exists()
     assert Policy(tmp_path / "model.npz").act(np.zeros((2, 9), np.float32)).shape == (2,)
+    # judged on a config of another action set: refused before any work, as an SB3 zip is
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(
+        app,
+        ["bench", "thermal_snap", "--methods", f"policy:{tmp_path / 'model.npz'}", "--trials",
+         "2", "--set", "scenario.duration_s=200", "--set", "adaptive.actions.count=5",
+         "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 2, result.output
+    assert "chooses among 11 actions" in result.output and "has 5" in result.output
+    assert not out.exists()
 
 
 @pytest.mark.slow  # trains an agent, then benchmarks and evaluates it
