@@ -371,7 +371,8 @@ def zoo_evaluate_cmd(
 def zoo_promote_cmd(
     name: Annotated[str, typer.Argument(help="Zoo entry (agents/zoo/NAME).")],
 ) -> None:
-    """Copy the entry's shipped policy and card to agents/zoo/best/."""
+    """Copy the entry's shipped policy and card to agents/zoo/best/ (an entry of another
+    problem than transfer alignment: agents/zoo/best_<problem>/)."""
     from agents.zoo.commands import promote
 
     try:

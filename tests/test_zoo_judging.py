@@ -111,3 +111,27 @@ def test_a_gyro_entry_refuses_the_transfer_alignment_sections_and_bad_judging(
     with pytest.raises(ConfigError, match=r"zoo.yaml: judging: --methods: .*'kf-tuned'"):
         evaluate_entry(entry, tmp_path / "work", progress=False, say=lambda s: None)
     assert not (tmp_path / "work" / "evaluation").exists()
+
+
+def test_promote_keeps_one_best_per_problem(tmp_path: Path) -> None:
+    """Promoting a gyro entry writes best_redundant_gyros/ and leaves best/ (the
+    transfer-alignment policy the README runs) as it was, and the reverse."""
+    from agents.zoo import ZOO_DIR, list_entries
+    from agents.zoo.commands import best_folder, promote
+
+    for name in ("ppo_gyro_mixture", "ppo_snap_random"):
+        (tmp_path / name).mkdir()
+        for file in ("zoo.yaml", "model.zip", "config.yaml", "card.md"):
+            shutil.copy(ZOO_DIR / name / file, tmp_path / name / file)
+    ta = promote(load_entry("ppo_snap_random", tmp_path), tmp_path)
+    assert ta == tmp_path / "best" == best_folder("transfer_alignment", tmp_path)
+    before = {p.name: p.read_bytes() for p in ta.iterdir()}
+    gyro = promote(load_entry("ppo_gyro_mixture", tmp_path), tmp_path)
+    assert gyro == tmp_path / "best_redundant_gyros"
+    assert {p.name: p.read_bytes() for p in ta.iterdir()} == before
+    assert (gyro / "SOURCE").read_text() == "ppo_gyro_mixture\n"
+    model = (tmp_path / "ppo_gyro_mixture" / "model.zip").read_bytes()
+    assert (gyro / "model.zip").read_bytes() == model
+    promote(load_entry("ppo_snap_random", tmp_path), tmp_path)  # again: gyro's best stays
+    assert (gyro / "model.zip").read_bytes() == model
+    assert [e.name for e in list_entries(tmp_path)] == ["ppo_gyro_mixture", "ppo_snap_random"]

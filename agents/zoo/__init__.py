@@ -11,8 +11,9 @@ it names, and what ``qkf zoo train`` and ``qkf zoo evaluate`` write into it:
 * ``card.md``: the model card (command, seeds, reward, wall time, evaluation tables);
 * ``evaluation/``: the judging tables (``trials.csv`` of every benchmark, ``zoo_summary.csv``).
 
-``agents/zoo/best/`` holds a copy of the best entry (``qkf zoo promote NAME``), so that
-``qkf bench … --methods …,policy:agents/zoo/best/model.zip`` works without knowing its name.
+``agents/zoo/best/`` holds a copy of the best transfer-alignment entry (``qkf zoo promote
+NAME``), so that ``qkf bench … --methods …,policy:agents/zoo/best/model.zip`` works without
+knowing its name; the best entry of another problem goes to ``agents/zoo/best_<problem>/``.
 """
 
 from agents.zoo.entry import ZOO_DIR, ZooEntry, list_entries, load_entry

@@ -15,7 +15,8 @@
   ``update_entry`` (``--update-entry``), so a quick ``--trials 2`` look never rewrites the
   published judgement. Refused before any work (:func:`check_entry`): a seed of ``zoo.yaml``
   without a model, or one trained on another environment than the entry's training config.
-* **promote**: copy an entry's shipped policy and card to ``agents/zoo/best/``.
+* **promote**: copy an entry's shipped policy and card to ``agents/zoo/best/`` (an entry of
+  another problem than transfer alignment: ``agents/zoo/best_<problem>/``).
 """
 
 from __future__ import annotations
@@ -463,9 +464,24 @@ def evaluate_entry(
     return card
 
 
+BEST_DIR = "best"
+"""Where ``promote`` puts the best transfer-alignment entry. The folder predates the other
+problems, and the README and docs run ``policy:agents/zoo/best/model.zip`` as a
+transfer-alignment policy, so it stays that problem's."""
+BEST_DIR_PROBLEM = "transfer_alignment"
+
+
+def best_folder(problem: str, zoo: Path = ZOO_DIR) -> Path:
+    """The folder of a problem's promoted entry: ``best/`` (:data:`BEST_DIR`) for transfer
+    alignment, ``best_<problem>/`` for any other, so that promoting an entry of one problem
+    never replaces another problem's best."""
+    return zoo / (BEST_DIR if problem == BEST_DIR_PROBLEM else f"{BEST_DIR}_{problem}")
+
+
 def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
-    """Copy the entry's shipped policy, config and card to ``zoo/best/``."""
-    best = zoo / "best"
+    """Copy the entry's shipped policy, config and card to its problem's best folder
+    (:func:`best_folder`); returns the folder."""
+    best = best_folder(entry.problem.name, zoo)
     model = entry.folder / entry.model_name()
     if not model.is_file():
         raise FileNotFoundError(f"{model}: the entry has no shipped model (qkf zoo train)")
@@ -481,6 +497,7 @@ def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
 
 
 __all__ = [
+    "best_folder",
     "check_entry",
     "check_families",
     "evaluate_case",

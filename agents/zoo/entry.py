@@ -51,7 +51,8 @@ from qkf.transfer_alignment.adaptive import TUNING_SEEDS
 from qkf.transfer_alignment.config import MAX_TRIALS
 
 ZOO_DIR = Path(__file__).resolve().parent
-"""The shipped zoo: ``agents/zoo/`` (one folder per entry, ``best/`` the promoted one)."""
+"""The shipped zoo: ``agents/zoo/`` (one folder per entry; ``best/``, ``best_<problem>/``: the
+promoted ones)."""
 
 SPEC_FILE = "zoo.yaml"
 
@@ -283,9 +284,10 @@ def load_entry(name: str | Path, zoo: Path = ZOO_DIR) -> ZooEntry:
 
 
 def list_entries(zoo: Path = ZOO_DIR) -> list[ZooEntry]:
-    """Every entry of the zoo with a readable spec, by name (``best/`` is a copy, not listed)."""
+    """Every entry of the zoo with a readable spec, by name (``best/`` and ``best_<problem>/``
+    are copies, not listed)."""
     entries = []
     for folder in sorted(p for p in zoo.iterdir() if (p / SPEC_FILE).is_file()):
-        if folder.name != "best":
+        if folder.name != "best" and not folder.name.startswith("best_"):
             entries.append(load_entry(folder.name, zoo))
     return entries
