@@ -70,7 +70,8 @@ def _no_command_deletes_a_file_it_did_not_write() -> Iterator[None]:
 @pytest.fixture(scope="session", autouse=True)
 def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """Tuned methods cache their results under ``$QKF_CACHE_DIR``: the suite's own cache, so
-    that no test reads a user's cached tuning or writes into their home."""
+    that no test reads a user's cached tuning or writes into their home; the results cache is
+    off, and SB3's default log folder is the session's (nothing left in ``/tmp``)."""
     import os
 
     before = os.environ.get("QKF_CACHE_DIR")
@@ -78,8 +79,16 @@ def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> It
     # and no results cache: a test that compares two runs must see both computed
     # (tests/test_results_cache.py turns it on where it is the subject)
     os.environ["QKF_NO_CACHE"] = "1"
+    # SB3 agents that learn without a TensorBoard folder make an empty /tmp/SB3-<time>/ each
+    # unless SB3_LOGDIR names one: the session's own
+    sb3_before = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
     yield
     os.environ.pop("QKF_NO_CACHE", None)
+    if sb3_before is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = sb3_before
     if before is None:
         os.environ.pop("QKF_CACHE_DIR", None)
     else:
