@@ -46,7 +46,7 @@ from pydantic import Field, field_validator, model_validator
 from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
-from qkf.core.problem import Problem, problem_of_env
+from qkf.core.problem import PROBLEMS, Problem, problem_of_env
 from qkf.transfer_alignment.adaptive import TUNING_SEEDS
 from qkf.transfer_alignment.config import MAX_TRIALS
 
@@ -288,6 +288,6 @@ def list_entries(zoo: Path = ZOO_DIR) -> list[ZooEntry]:
     are copies, not listed)."""
     entries = []
     for folder in sorted(p for p in zoo.iterdir() if (p / SPEC_FILE).is_file()):
-        if folder.name != "best" and not folder.name.startswith("best_"):
+        if folder.name not in {"best", *(f"best_{p}" for p in PROBLEMS.names())}:
             entries.append(load_entry(folder.name, zoo))
     return entries
