@@ -117,7 +117,8 @@ def test_promote_keeps_one_best_per_problem(tmp_path: Path) -> None:
     """Promoting a gyro entry writes best_redundant_gyros/ and leaves best/ (the
     transfer-alignment policy the README runs) as it was, and the reverse."""
     from agents.zoo import ZOO_DIR, list_entries
-    from agents.zoo.commands import best_folder, promote
+    from agents.zoo.commands import promote
+    from agents.zoo.entry import best_folder
 
     for name in ("ppo_gyro_mixture", "ppo_snap_random"):
         (tmp_path / name).mkdir()

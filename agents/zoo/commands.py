@@ -32,7 +32,7 @@ from agents.config import load_train_config
 from agents.training import plan_training
 from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
-from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry
+from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry, best_folder
 from agents.zoo.summary import (
     LEVEL,
     families_summary,
@@ -464,20 +464,6 @@ def evaluate_entry(
     return card
 
 
-BEST_DIR = "best"
-"""Where ``promote`` puts the best transfer-alignment entry. The folder predates the other
-problems, and the README and docs run ``policy:agents/zoo/best/model.zip`` as a
-transfer-alignment policy, so it stays that problem's."""
-BEST_DIR_PROBLEM = "transfer_alignment"
-
-
-def best_folder(problem: str, zoo: Path = ZOO_DIR) -> Path:
-    """The folder of a problem's promoted entry: ``best/`` (:data:`BEST_DIR`) for transfer
-    alignment, ``best_<problem>/`` for any other, so that promoting an entry of one problem
-    never replaces another problem's best."""
-    return zoo / (BEST_DIR if problem == BEST_DIR_PROBLEM else f"{BEST_DIR}_{problem}")
-
-
 def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
     """Copy the entry's shipped policy, config and card to its problem's best folder
     (:func:`best_folder`); returns the folder."""
@@ -497,7 +483,6 @@ def promote(entry: ZooEntry, zoo: Path = ZOO_DIR) -> Path:
 
 
 __all__ = [
-    "best_folder",
     "check_entry",
     "check_families",
     "evaluate_case",

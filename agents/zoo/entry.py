@@ -56,6 +56,19 @@ promoted ones)."""
 
 SPEC_FILE = "zoo.yaml"
 
+BEST_DIR = "best"
+"""Where ``promote`` puts the best transfer-alignment entry. The folder predates the other
+problems, and the README and docs run ``policy:agents/zoo/best/model.zip`` as a
+transfer-alignment policy, so it stays that problem's."""
+BEST_DIR_PROBLEM = "transfer_alignment"
+
+
+def best_folder(problem: str, zoo: Path = ZOO_DIR) -> Path:
+    """The folder of a problem's promoted entry: ``best/`` (:data:`BEST_DIR`) for transfer
+    alignment, ``best_<problem>/`` for any other, so that promoting an entry of one problem
+    never replaces another problem's best."""
+    return zoo / (BEST_DIR if problem == BEST_DIR_PROBLEM else f"{BEST_DIR}_{problem}")
+
 
 class JudgeCase(StrictModel):
     """One benchmark the entry's policies are judged on (all training seeds, paired)."""
@@ -288,6 +301,6 @@ def list_entries(zoo: Path = ZOO_DIR) -> list[ZooEntry]:
     are copies, not listed)."""
     entries = []
     for folder in sorted(p for p in zoo.iterdir() if (p / SPEC_FILE).is_file()):
-        if folder.name not in {"best", *(f"best_{p}" for p in PROBLEMS.names())}:
+        if folder.name not in {best_folder(p, zoo).name for p in PROBLEMS.names()}:
             entries.append(load_entry(folder.name, zoo))
     return entries
