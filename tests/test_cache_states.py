@@ -125,7 +125,7 @@ def _probe(cache: Path, out: Path, steps: str) -> subprocess.Popen[bytes]:
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), NUMBA_NUM_THREADS="1")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
     log = (out.parent / f"{out.name}.log").open("wb")
-    cmd = [sys.executable, str(PROBE), "probe", str(out), steps, "--methods", "kf,imm,vbakf"]
+    cmd = [sys.executable, str(PROBE), "probe", str(out), steps, "--methods", "kf,vbakf"]
     return subprocess.Popen(cmd, env=env, stdout=log, stderr=log)
 
 
@@ -160,24 +160,27 @@ def _cached_weak_functions(cache: Path) -> list[str]:
 
 @pytest.mark.slow
 def test_bench_and_environments_are_bit_identical_in_every_cache_state(tmp_path: Path) -> None:
-    """Cold (everything compiled in the process), warm (loaded from what the cold process
-    wrote), two processes that compile into one fresh cache at the same time in different orders
-    (as pytest-xdist workers do), and a process that loads what those two wrote."""
-    single, shared = tmp_path / "cache_single", tmp_path / "cache_parallel"
-    _wait(_probe(single, tmp_path / "cold", "bench,env"))
-    _wait(_probe(single, tmp_path / "warm", "bench,env"))
+    """Two processes that compile everything into one fresh cache at the same time, in
+    different orders (as pytest-xdist workers do), and a process that loads what those two
+    wrote: the same bits from the compiled and the loaded code.
+
+    The methods are ``kf`` (the kernel) and ``vbakf`` (its own compiled module over the shared
+    model functions): before the fix the loaded code moved ``vbakf`` by 1.9e-9, the single
+    environment's reward by 1.7e-10, and ``kf`` by 5.1e-9 in a cache two writers filled. The
+    state from one writer, the IMM/MMAE bank and every other method are
+    ``benchmarks/cache_states.py``'s (three more cold compiles: minutes)."""
+    shared = tmp_path / "cache_parallel"
     _wait(
         _probe(shared, tmp_path / "writer_a", "env,bench"),
         _probe(shared, tmp_path / "writer_b", "kalman,bench,env"),
     )
     _wait(_probe(shared, tmp_path / "read", "bench,env"))
 
-    states = ("cold", "warm", "writer_a", "writer_b", "read")
+    states = ("writer_a", "writer_b", "read")
     assert [s for s in states if not _computed_everything(tmp_path / s)] == []
-    cold = _outputs(tmp_path / "cold")
+    compiled = _outputs(tmp_path / "writer_a")
     for state in states[1:]:
         other = _outputs(tmp_path / state)
-        assert [k for k in cold if cold[k] != other[k]] == [], state
+        assert [k for k in compiled if compiled[k] != other[k]] == [], state
     if _elf():
-        assert _cached_weak_functions(single) == []
         assert _cached_weak_functions(shared) == []
