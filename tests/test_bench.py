@@ -44,6 +44,7 @@ def _read(path: Path) -> list[list[str]]:
 PAPER_METHODS = "kf,kf-tuned,sage-husa,qkf,mmae"  # the source paper's five (cheap ones)
 
 
+@pytest.mark.figures
 def test_bench_writes_the_spec_files(tmp_path: Path) -> None:
     _bench(tmp_path, "--methods", PAPER_METHODS)
     names = {p.name for p in tmp_path.iterdir()}

@@ -50,6 +50,7 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.figures
 def test_outputs_follow_the_contract(simulated: Path) -> None:
     names = {p.name for p in simulated.iterdir()}
     assert set(FILES) | {"summary.md", "residuals.png", "epoch_sigma.png", "spectra.png"} <= names

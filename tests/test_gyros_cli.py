@@ -45,6 +45,7 @@ def test_features_table(tmp_path: Path) -> None:
     assert "X and Y are hard to tell apart" in res.output
 
 
+@pytest.mark.figures
 def test_run_writes_the_contract_files(tmp_path: Path) -> None:
     out = tmp_path / "run"
     res = runner.invoke(app, ["gyros", "run", "five_gyros_s_bias", "--out", str(out), *SHORT])
@@ -154,6 +155,7 @@ def test_unknown_preset_lists_the_gyro_presets(tmp_path: Path) -> None:
     assert "five_gyros_s_bias" in res.output
 
 
+@pytest.mark.figures
 def test_bench_writes_its_tables(tmp_path: Path) -> None:
     out = tmp_path / "bench"
     sets = [

@@ -158,15 +158,20 @@ def test_switches_and_the_plan() -> None:
         tiny("adaptive.hindsight.blocks_s=[400, 25]")
 
 
-@pytest.mark.slow  # 3 trials of a 3600 s run, and the tuning of clock, oracle and kf-tuned
+@pytest.mark.slow  # 3 trials of a 1800 s run, and the tuning of clock, oracle and kf-tuned
 def test_hindsight_is_below_the_other_schedules_per_trial() -> None:
     """Per trial (3 here), the bound is at or below (within 0.5 %) every other κ schedule:
     the fixed and tuned KF, the clock, the oracle, alarm-burst and the shipped policy. (The
     many-trial check runs on a families study: benchmarks/hindsight_bound.py.)"""
     from agents.policy import run_policy
 
-    # the others are tuned on 2 trials here: the bound must hold however well they are tuned
-    cfg = cfg_with("adaptive.tuned.trials=2", base="thermal_snap_random.yaml")
+    # the others are tuned on 2 trials here: the bound must hold however well they are tuned;
+    # the family's run at half its length, the snap moved into it (the bound holds per trial
+    # whatever the length; the full length is the benchmark's)
+    cfg = cfg_with("adaptive.tuned.trials=2", "scenario.duration_s=1800",
+                   "scenario.random_events.jump.t_s.low=600",
+                   "scenario.random_events.jump.t_s.high=1300",
+                   base="thermal_snap_random.yaml")  # fmt: skip
     data = simulate(cfg, 5_000_000, 3)
     bound = estimate_scores(cfg, run_hindsight(cfg, data).est, data)
     oracle = prepare(run_oracle, cfg)

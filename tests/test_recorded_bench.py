@@ -206,6 +206,7 @@ def read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.figures
 def test_cli_without_truth_writes_estimates_quality_and_plots(tmp_path: Path) -> None:
     cfg = short(500.0)
     write(tmp_path / "tm.csv", cfg, truth=False)

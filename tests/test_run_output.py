@@ -76,6 +76,7 @@ def test_run_json_describes_the_run_and_reproduces_it(tmp_path: Path) -> None:
     assert (tmp_path / "a" / "rms.csv").read_bytes() == (tmp_path / "b" / "rms.csv").read_bytes()
 
 
+@pytest.mark.figures
 def test_plot_redraws_every_figure_from_the_files(tmp_path: Path) -> None:
     out = tmp_path / "run"
     assert _bench(out, "--methods", "kf,qkf").exit_code == 0

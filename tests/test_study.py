@@ -26,6 +26,7 @@ def test_study_files_load(path: Path) -> None:
     assert len(configs) == len(study_cases(study)) >= 2
 
 
+@pytest.mark.figures
 def test_rotation_duration_study(tmp_path: Path) -> None:
     result = runner.invoke(
         app,

@@ -302,6 +302,7 @@ def test_trials_of_a_crlb_study_are_refused(tmp_path: Path) -> None:
     _refused(result, "--trials", "CRLB study")
 
 
+@pytest.mark.figures
 def test_plot_redraws_a_study_without_rerunning(tmp_path: Path) -> None:
     cases = (
         "cases:\n  - {label: a, set: [scenario.duration_s=20]}\n"
@@ -320,6 +321,7 @@ def test_plot_redraws_a_study_without_rerunning(tmp_path: Path) -> None:
     assert (out / "a" / "rms.csv").stat().st_mtime_ns == stamp  # nothing rerun
 
 
+@pytest.mark.figures
 def test_plot_redraws_a_crlb_study(tmp_path: Path) -> None:
     path = tmp_path / "c.yaml"
     path.write_text("name: c\nkind: crlb\nbase: paper\ncases:\n"
@@ -386,6 +388,7 @@ def test_plot_on_a_folder_without_results(tmp_path: Path) -> None:
     _refused(runner.invoke(app, ["plot", str(tmp_path)]), "no qkf bench results (rms.csv)")
 
 
+@pytest.mark.figures
 @pytest.mark.parametrize(
     ("damage", "needles"),
     [
