@@ -34,16 +34,18 @@ def test_covariance_stays_spd_over_a_million_steps(matching: str) -> None:
     kf.initialize(data.ads_q[:, 0])
     rng = np.random.default_rng(0)
     kappa = np.where(rng.random((1, STEPS)) < 0.5, 0.01, 100.0)
-    min_eig = np.inf
+    shifted = 1e-12 * np.eye(15)
     for k0 in range(0, STEPS, BLOCK):
         rec = kf.step_data(data, k0, k0 + BLOCK, kappa=kappa[:, k0 : k0 + BLOCK], record_cov=True)
         assert not kf.diverged.any(), f"diverged before epoch {k0 + BLOCK}"
         cov = rec.cov[0]
         assert np.all(np.isfinite(cov))
         assert np.array_equal(cov, np.swapaxes(cov, 1, 2)), "P not exactly symmetric"
-        # eigenvalues of the correlation matrix: scale-free positive definiteness
+        # scale-free positive definiteness: every eigenvalue of the correlation matrix above
+        # 1e-12, i.e. corr − 1e-12·I has a Cholesky factor (a quarter of eigvalsh's time)
         sd = np.sqrt(np.einsum("nii->ni", cov))
         corr = cov / (sd[:, :, None] * sd[:, None, :])
-        min_eig = min(min_eig, float(np.linalg.eigvalsh(corr).min()))
-        assert min_eig > 0.0, f"P lost positive definiteness in block starting {k0}"
-    assert min_eig > 1e-12
+        try:
+            np.linalg.cholesky(corr - shifted)
+        except np.linalg.LinAlgError:
+            pytest.fail(f"P lost positive definiteness (eigenvalue <= 1e-12) in block {k0}")
