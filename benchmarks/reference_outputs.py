@@ -9,7 +9,8 @@ on the old tree and on the new one, then compare::
     python benchmarks/reference_outputs.py --out /tmp/ref_old            # in the old checkout
     python benchmarks/reference_outputs.py --out /tmp/ref_new --against /tmp/ref_old
 
-``--against`` exits 1 and names the files that differ.
+``--against`` exits 1 and names the files that differ. Give each run an empty numba cache
+(``NUMBA_CACHE_DIR=<new folder>``); the results cache is off for every command.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -38,7 +40,11 @@ GYRO_BACKENDS: tuple[tuple[str, list[str]], ...] = (
 def _qkf(*args: str) -> None:
     cmd = [sys.executable, "-m", "qkf", *args]
     print("$ qkf", " ".join(args), flush=True)
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    # every result computed, none read back from the user's results cache: a cached entry is
+    # the numbers of whatever numba cache state wrote it (docs/performance.md, "A cache
+    # filled piecemeal"), not of this run
+    env = {**os.environ, "QKF_NO_CACHE": "1"}
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env)
 
 
 def _supports(command: list[str], option: str) -> bool:
