@@ -34,7 +34,6 @@ def test_covariance_stays_spd_over_a_million_steps(matching: str) -> None:
     kf.initialize(data.ads_q[:, 0])
     rng = np.random.default_rng(0)
     kappa = np.where(rng.random((1, STEPS)) < 0.5, 0.01, 100.0)
-    shifted = 1e-12 * np.eye(15)
     for k0 in range(0, STEPS, BLOCK):
         rec = kf.step_data(data, k0, k0 + BLOCK, kappa=kappa[:, k0 : k0 + BLOCK], record_cov=True)
         assert not kf.diverged.any(), f"diverged before epoch {k0 + BLOCK}"
@@ -46,6 +45,6 @@ def test_covariance_stays_spd_over_a_million_steps(matching: str) -> None:
         sd = np.sqrt(np.einsum("nii->ni", cov))
         corr = cov / (sd[:, :, None] * sd[:, None, :])
         try:
-            np.linalg.cholesky(corr - shifted)
+            np.linalg.cholesky(corr - 1e-12 * np.eye(corr.shape[-1]))
         except np.linalg.LinAlgError:
             pytest.fail(f"P lost positive definiteness (eigenvalue <= 1e-12) in block {k0}")
