@@ -20,11 +20,9 @@ from qkf.core.cli_support import (
     fail,
     out,
     out_dir,
-    refused,
     seed_option,
 )
 from qkf.core.config import ConfigError
-from qkf.transfer_alignment.config import MAX_TRIALS, check_workload, load_config
 
 if TYPE_CHECKING:  # the zoo is imported by its commands only (torch stays unloaded)
     from agents.zoo import ZooEntry
@@ -114,48 +112,36 @@ def evaluate_cmd(
     no_cache: NoCacheOption = False,
 ) -> None:
     """Filter Monte Carlo trials with the policy's κ beside kf (and kf-tuned when its tuning
-    is in the results cache: docs/caching.md); writes the files of ``qkf bench``."""
+    is in the results cache: docs/caching.md); writes the files of ``qkf bench``. A policy of a
+    problem without those files is pointed to ``qkf judge``."""
     from agents.policy import Policy
     from qkf.core.problem import problem_of_env
-    from qkf.core.results_cache import cache_enabled
-    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
-    from qkf.transfer_alignment.chunk_cache import preparation_cached
-    from qkf.transfer_alignment.methods import METHODS, resolve_method_settings
-    from qkf.transfer_alignment.results import write_bench
 
     if model.is_dir():
         raise fail(f"{model}: is a directory, not a model file (model.zip or model.npz)")
     if not model.is_file():
         raise fail(f"{model}: no such model file")
-    if not 1 <= trials <= MAX_TRIALS:
-        raise fail(f"--trials must be between 1 and {MAX_TRIALS:,}")
     seed_option(seed)
     try:
         policy = Policy(model)
         problem = problem_of_env(policy.cfg.env)
-        if problem.name != "transfer_alignment":  # qkf bench's files are transfer alignment's
+        if not 1 <= trials <= problem.max_trials:
+            raise ConfigError(f"--trials must be between 1 and {problem.max_trials:,}")
+        bench = problem.bench
+        if bench is None:  # qkf bench's files are one problem's; every problem has qkf judge
             raise ConfigError(
-                f"{model}: a policy of {policy.cfg.env} ({problem.name}); qkf evaluate writes "
-                f"transfer alignment's bench. Judge it with: qkf judge {problem.name} --methods "
+                f"{model}: a policy of {policy.cfg.env} ({problem.name}), which has no bench "
+                f"files. Judge it with: qkf judge {problem.name} --methods "
                 f"{','.join(problem.methods.names()[:2])},policy:{model} --out DIR"
             )
-        cfg = load_config(scenario or policy.cfg.scenario, list(set_ or []))
-        # kf beside the policy, and kf-tuned where its tuning is cached: a table that reads on
-        # its own without a tuning run
-        baselines = ["kf"]
-        if not no_cache and cache_enabled() and preparation_cached(METHODS["kf-tuned"], cfg):
-            baselines.append("kf-tuned")
-        named = parse_methods([*baselines, f"policy:{model}"])
-        cfg = resolve_method_settings(cfg, named, str(scenario or policy.cfg.scenario))
+        source = str(scenario or policy.cfg.scenario)
+        cfg = problem.load_config(source, list(set_ or []))
+        specs = [*bench.quick_baselines(cfg, cache=not no_cache), f"policy:{model}"]
+        prepared = bench.prepare(cfg, specs, trials, source)
     except (ConfigError, ValueError) as exc:
         raise fail(str(exc)) from None
-    with refused(f"{scenario or policy.cfg.scenario}: "):
-        check_workload(cfg, trials)
     folder = out_dir(out_path, "bench", overwrite)
-    res = run_benchmark(
-        cfg, named, trials=trials, seed=seed, progress=not quiet, cache=not no_cache
-    )
-    write_bench(res, folder)
+    bench.run(prepared, seed, folder, progress=not quiet, cache=not no_cache)
     out.print((folder / "summary.md").read_text(), soft_wrap=True, markup=False, highlight=False)
 
 
@@ -173,6 +159,13 @@ def dataset_cmd(
         int | None, typer.Option(help="Episodes: trials 0 … N−1 (config: run.trials).")
     ] = None,
     seed: Annotated[int | None, typer.Option(help="Seed of the trials (config: run.seed).")] = None,
+    env: Annotated[
+        str | None,
+        typer.Option(
+            help="Environment id whose episodes are recorded (default: the one environment "
+            "with datasets)."
+        ),
+    ] = None,
     controls: Annotated[
         str, typer.Option(help="v4 controls of the action space, joined with + (kappa, reset, …).")
     ] = "kappa+reset",
@@ -184,19 +177,34 @@ def dataset_cmd(
     set_: SetOption = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
-    """Minari datasets of qkf/TransferAlignment-v4 episodes driven by methods, one per method:
-    --out/qkf/transfer-alignment-v4-SCENARIO-METHOD-v0 (docs/environment.md, "Datasets").
+    """Minari datasets of --env's episodes (qkf/TransferAlignment-v4) driven by methods, one per
+    method: --out/qkf/transfer-alignment-v4-SCENARIO-METHOD-v0 (docs/environment.md,
+    "Datasets").
 
     The method's κ and calibration resets become the environment's moves; the actions stored
     are the nearest discrete ones. An existing dataset is never replaced (exit 2, nothing
     written); every input is checked before any work.
     """
     seed_option(seed)
-    from agents.datasets import make_datasets, plan_datasets
+    from envs import ENVIRONMENTS
     from qkf.core.montecarlo import progress_bar
+    from qkf.core.registry import RegistryError, load_object
 
+    with_datasets = [e for e in ENVIRONMENTS.names() if ENVIRONMENTS[e].datasets]
+    if env is None and len(with_datasets) != 1:
+        raise fail(f"--env: name one of the environments with datasets: "
+                   f"{', '.join(with_datasets) or 'none'}")  # fmt: skip
+    env = env if env is not None else with_datasets[0]
     try:
-        plan = plan_datasets(
+        spec = ENVIRONMENTS[env]
+    except (KeyError, RegistryError) as exc:
+        raise fail(f"--env: {exc}") from None
+    if spec.datasets is None:
+        raise fail(f"--env: {env} has no datasets; environments with them: "
+                   f"{', '.join(with_datasets)}")  # fmt: skip
+    builder = load_object(spec.datasets)
+    try:
+        plan = builder.plan(
             scenario, methods, trials, seed, controls, reward, period_s, out_path, set_ or []
         )
     except ConfigError as exc:
@@ -209,7 +217,7 @@ def dataset_cmd(
             return lambda: bar(1)
 
         try:
-            written = make_datasets(plan, on_method)
+            written = builder.make(plan, on_method)
         except (ConfigError, ValueError, FileExistsError) as exc:
             raise fail(str(exc)) from None
     for path in written:
@@ -342,11 +350,11 @@ def zoo_evaluate_cmd(
     model, or trained on another environment version than the entry's training config."""
     from agents.zoo.commands import check_entry, evaluate_entry
     from qkf.core.io import OutputError
-    from qkf.transfer_alignment.methods import MethodOutputError
+    from qkf.core.problem import MethodOutputError
 
     entry = _entry(name)
-    if trials is not None and not 2 <= trials <= MAX_TRIALS:
-        raise fail(f"--trials must be between 2 and {MAX_TRIALS:,}")
+    if trials is not None and not 2 <= trials <= entry.problem.max_trials:
+        raise fail(f"--trials must be between 2 and {entry.problem.max_trials:,}")
     if not entry.trained_seeds():
         raise fail(f"{entry.folder}: no trained seed (run qkf zoo train {entry.name} first)")
     try:

@@ -34,8 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+from qkf.core.seed_groups import SEED_MARK
 from qkf.core.stats import bootstrap_rms, percentile_interval, resample_counts
-from qkf.transfer_alignment.families import SEED_MARK, seed_statistics
+from qkf.transfer_alignment.families import seed_statistics
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.results import read_trials_csv
 from qkf.transfer_alignment.states import GROUPS

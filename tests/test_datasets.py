@@ -1,8 +1,8 @@
-"""``qkf dataset`` (agents/datasets.py): a method's decisions as the environment's moves (kf's
-constant κ, glr's re-openings as resets a period later), the replay of nis-rule through the
-environment reproducing the method's estimates, the Minari dataset read back (arrays, metadata,
-returns the environment gives for the stored actions), and the command's refusals (exit 2,
-nothing written) and reproducibility (docs/environment.md, "Datasets")."""
+"""``qkf dataset`` (envs/transfer_alignment/datasets.py): a method's decisions as the
+environment's moves (kf's constant κ, glr's re-openings as resets a period later), the replay of
+nis-rule through the environment reproducing the method's estimates, the Minari dataset read back
+(arrays, metadata, returns the environment gives for the stored actions), and the command's
+refusals (exit 2, nothing written) and reproducibility (docs/environment.md, "Datasets")."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from agents.datasets import (
+from envs.transfer_alignment.controls import ControlMap
+from envs.transfer_alignment.datasets import (
     DatasetPlan,
     dataset_id,
     dataset_of,
@@ -25,7 +26,6 @@ from agents.datasets import (
     record_episodes,
     run_method,
 )
-from envs.transfer_alignment.controls import ControlMap
 from qkf.cli import app
 from qkf.transfer_alignment.config import load_config
 from qkf.transfer_alignment.methods import MethodOutput, resolve_method
@@ -254,6 +254,8 @@ def test_the_command_refuses_before_any_work(tmp_path: Path) -> None:
         (("--controls", "kappa+blocks"), "kf", "--controls"),
         (("--reward", "nope"), "kf", "--reward"),
         (("--set", "scenario.dt_s=-1"), "kf", "scenario.dt_s"),
+        (("--env", "qkf/RedundantGyroCalibration-v3"), "kf", "qkf/TransferAlignment-v4"),
+        (("--env", "qkf/NoSuchEnv-v0"), "kf", "NoSuchEnv"),
     ):
         fresh = tmp_path / f"new_{word.strip('-')}"
         res = _dataset_cmd(fresh, *args, methods=methods)

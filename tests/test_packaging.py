@@ -89,28 +89,16 @@ def test_no_problem_package_imports_another_and_the_core_none() -> None:
     assert offenders == []
 
 
-DIRECT_PROBLEM_IMPORTS = {
-    # still written for transfer alignment alone (docs/architecture.md, "The problem
-    # registry"): the v4 expert's datasets, qkf evaluate and the zoo, which runs qkf study
-    # families; a module ported to the registries leaves this list
-    "agents/cli.py",
-    "agents/datasets.py",
-    "agents/zoo/commands.py",
-    "agents/zoo/entry.py",
-    "agents/zoo/summary.py",
-}
-
-
 def test_agents_reach_the_problems_through_the_registries() -> None:
-    """No module of agents/ imports a problem package but the listed ones, which do: a new
-    module goes through qkf.core.problem.PROBLEMS, the method registries and the environment
-    registry (policy_runner), and a ported one must leave the list."""
+    """No module of agents/ imports a problem package: the agents reach a problem through
+    qkf.core.problem.PROBLEMS (its bench and families study included), the method registries
+    and the environment registry (policy_runner)."""
     direct = {
         str(p.relative_to(ROOT))
         for p in (ROOT / "agents").rglob("*.py")
         if any(m.startswith("qkf.") and m.split(".")[1] in PROBLEMS for m in _modules(p))
     }
-    assert direct == DIRECT_PROBLEM_IMPORTS
+    assert direct == set()
 
 
 def test_only_the_top_level_command_line_mounts_the_apps() -> None:

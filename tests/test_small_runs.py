@@ -14,7 +14,7 @@ from agents.zoo import load_entry
 from agents.zoo.commands import case_baselines, families_run
 from qkf.cli import app
 from qkf.core.config import ConfigError
-from qkf.transfer_alignment.study import pick_baselines, spec_label
+from qkf.core.method_specs import pick_baselines, spec_label
 
 ENTRY = ROOT / "agents" / "zoo" / "ppo_mixed_v3"
 
@@ -32,7 +32,7 @@ def test_pick_baselines_keeps_the_order_and_names_the_choices() -> None:
 def test_a_zoo_entry_judged_on_a_subset_of_its_baselines() -> None:
     entry = load_entry(ENTRY)
     run = families_run(entry, 2, ["glr", "kf-tuned"])
-    assert run.baselines == ["kf-tuned", "glr"] and run.trials == 2
+    assert run.baselines == ("kf-tuned", "glr") and run.trials == 2
     with pytest.raises(ConfigError, match=r"zoo\.yaml: families: --baselines: oracle"):
         families_run(entry, 2, ["oracle"])
     for case in entry.spec.cases():

@@ -17,14 +17,16 @@ from scipy import stats as sps
 from typer.testing import CliRunner
 
 from agents.zoo import load_entry
-from agents.zoo.entry import FamiliesJudge, ZooSpec, study_methods
+from agents.zoo.entry import FamiliesJudge, ZooSpec, families_for
 from qkf.cli import app
 from qkf.core.config import ConfigError, validate
+from qkf.core.problem import PROBLEMS
 from qkf.transfer_alignment.metrics import METRIC_COLUMNS, STATE_SETTLED
 from qkf.transfer_alignment.problem import FAMILIES, SHIFT_FAMILIES
 from qkf.transfer_alignment.results import read_trials_csv
 
 runner = CliRunner()
+TA = PROBLEMS["transfer_alignment"]
 SOURCE = Path(__file__).resolve().parents[1] / "agents" / "zoo" / "ppo_snap_random"
 """A shipped entry whose trained seeds stand in for a fresh training (no training here)."""
 SHORT = [
@@ -55,28 +57,46 @@ def _tree(folder: Path) -> list[str]:
 
 
 def test_spec_defaults_and_refusals() -> None:
+    """The section's shape is checked by the schema; what depends on the problem (families,
+    judging seeds, largest run, metric, the study's reference and defaults) by families_for,
+    each refusal naming its field."""
     spec = validate(ZooSpec, {"train": "x", "families": {}}, "zoo.yaml", "zoo entry")
     assert spec.families is not None and spec.judge is None and spec.cases() == []
-    assert tuple(spec.families.families) == FAMILIES
-    assert spec.families.baselines == study_methods()
-    assert (spec.families.trials, spec.families.seed) == (100, 9000)
-    assert spec.families.metric == "state_settled"
+    section = families_for(spec.families, TA)
+    assert section.families is not None and tuple(section.families) == FAMILIES
+    assert TA.families_study is not None
+    assert section.baselines == TA.families_study.default_baselines()
+    assert "kf-tuned" in section.baselines and "hindsight" in section.baselines
+    assert (section.trials, section.seed) == (100, 9000)
+    assert section.metric == "state_settled"
     refused = {
-        "seed": ({"seed": 1_000_005}, "families.seed: Value error, 1000005 is not a judging seed"),
+        "seed": ({"seed": 1_000_005}, "families.seed: 1000005 is not a judging seed"),
         "range": ({"seed": 5_100_000}, "not a judging seed"),
         "metric": ({"metric": "ma_urad_settled"}, "families.metric"),
-        "trials": ({"trials": 1}, "families.trials"),
         "family": ({"families": ["paper"]}, "paper: not a family"),
         "kf-tuned": ({"baselines": ["kf"]}, "must include kf-tuned"),
-        "mark": ({"baselines": ["kf-tuned", "p#0=kf"]}, "p#0"),
+        "max": ({"trials": TA.max_trials + 1}, "families.trials"),
     }
-    for what, (section, message) in refused.items():
-        with pytest.raises(ConfigError) as err:
-            validate(ZooSpec, {"train": "x", "families": section}, "zoo.yaml", "zoo entry")
+    for what, (section_in, message) in refused.items():
+        checked = validate(ZooSpec, {"train": "x", "families": section_in}, "zoo.yaml", "zoo")
+        assert checked.families is not None
+        with pytest.raises(ValueError) as err:
+            families_for(checked.families, TA)
         assert message in str(err.value), what
+    shape = {
+        "trials": ({"trials": 1}, "families.trials"),
+        "mark": ({"baselines": ["kf-tuned", "p#0=kf"]}, "p#0"),
+        "twice": ({"families": ["steady_random", "steady_random"]}, "listed twice"),
+    }
+    for what, (section_in, message) in shape.items():
+        with pytest.raises(ConfigError) as cerr:
+            validate(ZooSpec, {"train": "x", "families": section_in}, "zoo.yaml", "zoo entry")
+        assert message in str(cerr.value), what
     with pytest.raises(ConfigError, match="judge:, families: or judging: required"):
         validate(ZooSpec, {"train": "x"}, "zoo.yaml", "zoo entry")
     assert FamiliesJudge(seed=0).seed == 0
+    with pytest.raises(ValueError, match="has no families study"):
+        families_for(FamiliesJudge(), PROBLEMS["redundant_gyros"])
 
 
 def test_missing_seed_refused_before_any_work(tmp_path: Path) -> None:

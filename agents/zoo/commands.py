@@ -7,8 +7,9 @@
   ``seed_<s>/``; the seed with the best last evaluation is copied to the entry's top.
 * **evaluate**: for each judging case one benchmark runs the baselines, the oracle and the
   policy of *every* training seed on the same trials (benchmark seeds, disjoint from the
-  environment seeds the agents were trained on); with a ``families:`` section, the families
-  study (``qkf study families``, :mod:`qkf.transfer_alignment.study`) runs the baselines and
+  environment seeds the agents were trained on); with a ``families:`` section, the problem's
+  families study (:class:`qkf.core.studies.FamiliesStudy`; transfer alignment's
+  ``qkf study families``) runs the baselines and
   ``NAME#SEED=policy:…`` of every training seed into ``WORK/families/``. The bench outputs,
   the per-trial tables, the summaries (:mod:`agents.zoo.summary`) and the card go to the work
   folder. The shipped entry (``evaluation/``, ``card.md``, tracked in git) changes only with
@@ -23,7 +24,6 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,7 @@ from agents.config import load_train_config
 from agents.training import plan_training
 from agents.training.records import EVALUATIONS
 from agents.zoo.card import write_card
-from agents.zoo.entry import FAMILIES_STUDY, ZOO_DIR, JudgeCase, ZooEntry, best_folder
+from agents.zoo.entry import ZOO_DIR, FamiliesJudge, JudgeCase, ZooEntry, best_folder
 from agents.zoo.summary import (
     LEVEL,
     families_summary,
@@ -43,6 +43,8 @@ from agents.zoo.summary import (
 from qkf.core.config import ConfigError, read_yaml_mapping
 from qkf.core.family_judging import RUN_KIND, JudgePlan
 from qkf.core.io import OutputError, atomic_write_bytes, check_output_dir
+from qkf.core.method_specs import pick_baselines
+from qkf.core.studies import Bench, FamiliesStudy, StudyRun
 
 PROMOTED = ("config.yaml", "card.md", "SOURCE")
 """What ``promote`` writes into ``best/`` besides the model."""
@@ -101,49 +103,40 @@ def check_entry(entry: ZooEntry) -> None:
 
 def family_policies(entry: ZooEntry) -> list[str]:
     """``NAME#SEED=policy:PATH`` of every trained seed: the labels the families study pools
-    over training seeds (:func:`qkf.transfer_alignment.families.seed_statistics`)."""
+    over training seeds (:func:`qkf.core.seed_groups.seed_statistics`)."""
     return [f"{entry.name}#{s}=policy:{entry.seed_model(s)}" for s in entry.trained_seeds()]
 
 
-@dataclass(frozen=True)
-class FamiliesRun:
-    """The families study of an entry, as ``load_study``/``run_study`` take it."""
-
-    families: list[str]
-    baselines: list[str]  # replace the study's methods
-    policies: list[str]  # added after them: NAME#SEED=policy:PATH
-    seed: int  # benchmark seed
-    trials: int  # per family
-    sets: list[str]  # --set overrides of every family
+def families_section(entry: ZooEntry) -> tuple[FamiliesJudge, FamiliesStudy]:
+    """The entry's ``families:`` section (its defaults filled in by ``load_entry``) and its
+    problem's families study; ``ConfigError`` without either."""
+    fam, study = entry.spec.families, entry.problem.families_study
+    if fam is None or study is None or fam.families is None or fam.baselines is None:
+        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: no families: section")
+    return fam, study
 
 
 def families_run(
     entry: ZooEntry, trials: int | None, baselines: list[str] | None = None
-) -> FamiliesRun:
+) -> StudyRun:
     """The entry's families study; ``trials`` replaces the section's own; ``baselines``: only
     these of the section's baselines (``ConfigError`` for one it does not have)."""
-    from qkf.transfer_alignment.study import pick_baselines
-
-    fam = entry.spec.families
-    if fam is None:
-        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: no families: section")
-    kept = list(fam.baselines)
+    fam, _ = families_section(entry)
+    kept = list(fam.baselines or [])
     if baselines is not None:
         try:
             kept = pick_baselines(kept, baselines)
         except ConfigError as exc:
             raise ConfigError(f"{entry.folder / 'zoo.yaml'}: families: {exc}") from None
-    return FamiliesRun(
-        list(fam.families), kept, family_policies(entry), fam.seed,
-        trials or fam.trials, list(fam.overrides),
+    return StudyRun(
+        tuple(fam.families or []), tuple(kept), tuple(family_policies(entry)), fam.seed,
+        trials or fam.trials, tuple(fam.overrides),
     )  # fmt: skip
 
 
 def case_baselines(entry: ZooEntry, case: JudgeCase, baselines: list[str] | None) -> list[str]:
     """A judging case's baselines, only ``baselines`` among them if given (``ConfigError`` for
     one the case does not have)."""
-    from qkf.transfer_alignment.study import pick_baselines
-
     if baselines is None:
         return list(case.baselines)
     try:
@@ -157,38 +150,22 @@ def check_families(
 ) -> None:
     """Everything the families study would refuse, checked before any work (``ConfigError``):
     the entry's name as a method label, the study (families, methods, seed, every family's
-    config with the overrides), the workload, and ``WORK/families/`` (empty, or an earlier
-    study, which the run replaces whole at its end)."""
-    from qkf.transfer_alignment.cases import prepare_output
-    from qkf.transfer_alignment.config import check_workload
-    from qkf.transfer_alignment.study import load_study, study_cases
-
+    config with the overrides, the workload, the zoo's interval level: the problem's
+    :meth:`~qkf.core.studies.FamiliesStudy.check`), and ``WORK/families/`` (empty, or an
+    earlier study, which the run replaces whole at its end)."""
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", entry.name):
         raise ConfigError(
             f"{entry.folder}: the entry's name {entry.name!r} labels its policies in the "
             "families study (NAME#SEED); use letters, digits, '_', '.', '-' only"
         )
+    _, study = families_section(entry)
     run = families_run(entry, trials, baselines)
-    where = f"{entry.folder / 'zoo.yaml'}: families"
     try:
-        study, configs = load_study(
-            FAMILIES_STUDY, run.sets, families=run.families, methods=run.policies,
-            seed=run.seed, base_methods=run.baselines, shift=True,
-        )  # fmt: skip
-        for case, cfg in zip(study_cases(study), configs, strict=True):
-            try:
-                check_workload(cfg, run.trials)
-            except ConfigError as exc:
-                raise ConfigError(f"{case.label}: {exc}") from None
-            if cfg.run.bootstrap.level != LEVEL:  # the card states the zoo's level
-                raise ConfigError(
-                    f"{case.label}: run.bootstrap.level: {cfg.run.bootstrap.level:g}; the "
-                    f"zoo reports {100 * LEVEL:g} % intervals (leave it at {LEVEL:g})"
-                )
+        study.check(run, LEVEL)  # the card states the zoo's level
     except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: families: {exc}") from None
     try:
-        prepare_output(work / FAMILIES_DIR, resume=True, overwrite=False)
+        study.check_output(work / FAMILIES_DIR)
     except OutputError as exc:
         raise ConfigError(f"--work: {exc}") from None
 
@@ -254,6 +231,30 @@ def policy_methods(entry: ZooEntry) -> list[str]:
     return [f"{entry.name}:s{s}=policy:{entry.seed_model(s)}" for s in entry.trained_seeds()]
 
 
+def entry_bench(entry: ZooEntry) -> Bench:
+    """The bench of the entry's problem, which its ``judge:`` cases run (``load_entry`` has
+    refused the cases of a problem without one)."""
+    bench = entry.problem.bench
+    if bench is None:
+        raise ConfigError(f"{entry.folder / 'zoo.yaml'}: judge: {entry.problem.name} has no bench")
+    return bench
+
+
+def prepare_case(
+    entry: ZooEntry, case: JudgeCase, trials: int | None, baselines: list[str] | None = None
+) -> object:
+    """One judging benchmark checked before any work (``ConfigError``, ``ValueError``): the
+    case's config with its overrides, its baselines (only ``baselines`` among them if given),
+    the oracle and every trained seed's policy (``<name>:s<seed>``), and the workload."""
+    cfg = entry.problem.load_config(case.scenario, list(case.overrides))
+    specs = [
+        *case_baselines(entry, case, baselines),
+        *(["oracle"] if case.oracle else []),
+        *policy_methods(entry),
+    ]
+    return entry_bench(entry).prepare(cfg, specs, trials or case.trials, case.scenario)
+
+
 def evaluate_case(
     entry: ZooEntry,
     case: JudgeCase,
@@ -263,28 +264,11 @@ def evaluate_case(
     cache: bool = False,
     baselines: list[str] | None = None,
 ) -> Path:
-    """One judging benchmark; returns its bench folder (in the work folder). ``baselines``:
-    only these of the case's baselines."""
-    from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
-    from qkf.transfer_alignment.config import load_config
-    from qkf.transfer_alignment.results import write_bench
-
-    cfg = load_config(case.scenario, list(case.overrides))
-    specs = [
-        *case_baselines(entry, case, baselines),
-        *(["oracle"] if case.oracle else []),
-        *policy_methods(entry),
-    ]
-    res = run_benchmark(
-        cfg,
-        parse_methods(",".join(specs)),
-        trials or case.trials,
-        case.seed,
-        progress=progress,
-        cache=cache,
-    )
+    """One judging benchmark (:func:`prepare_case`); returns its bench folder (in the work
+    folder)."""
+    prepared = prepare_case(entry, case, trials, baselines)
     folder = work / f"judge_{Path(case.scenario).stem}_seed{case.seed}"
-    write_bench(res, folder)
+    entry_bench(entry).run(prepared, case.seed, folder, progress=progress, cache=cache)
     return folder
 
 
@@ -297,31 +281,24 @@ def evaluate_families(
     cache: bool = False,
     baselines: list[str] | None = None,
 ) -> Path:
-    """The entry's families study (``qkf study families --shift`` with the entry's families,
-    always the shift group, trials, seed, its baselines as the methods and
-    ``NAME#SEED=policy:PATH`` per trained seed) into
-    ``WORK/families/``; returns it. A family that an earlier, interrupted run there finished
-    with the same config, methods, trials and seed is kept, not rerun (``run_study``'s
-    resume); anything else of an earlier study there is replaced."""
-    from qkf.transfer_alignment.campaigns import run_study
-    from qkf.transfer_alignment.cases import CaseRun
-
+    """The entry's families study (the problem's, :class:`~qkf.core.studies.FamiliesStudy`:
+    the entry's families, always the shift group, trials, seed, its baselines as the methods
+    and ``NAME#SEED=policy:PATH`` per trained seed) into ``WORK/families/``; returns it. A
+    family that an earlier, interrupted run there finished with the same config, methods,
+    trials and seed is kept, not rerun; anything else of an earlier study there is
+    replaced."""
+    _, study = families_section(entry)
     run = families_run(entry, trials, baselines)
     out = work / FAMILIES_DIR
 
-    def on_start(i: int, n: int, case: CaseRun) -> None:
-        say(f"family {i}/{n}: {case.label}")
+    def on_start(i: int, n: int, family: str) -> None:
+        say(f"family {i}/{n}: {family}")
 
-    def on_case(case: CaseRun, folder: Path, reused: bool) -> None:
+    def on_case(family: str, reused: bool) -> None:
         if reused:
-            say(f"{case.label}: finished earlier, kept")
+            say(f"{family}: finished earlier, kept")
 
-    run_study(
-        FAMILIES_STUDY, out, progress, resume=True, overwrite=False, on_case=on_case,
-        trials=run.trials,
-        sets=run.sets, on_start=on_start, families=run.families, extra_methods=run.policies,
-        seed=run.seed, base_methods=run.baselines, cache=cache, shift=True,
-    )  # fmt: skip
+    study.run(run, out, progress, on_start, on_case, cache)
     return out
 
 
@@ -399,7 +376,10 @@ def evaluate_entry(
         raise FileNotFoundError(f"{entry.folder}: no trained seed (run qkf zoo train first)")
     check_entry(entry)
     for case in entry.spec.cases():
-        case_baselines(entry, case, baselines)  # refused before any work
+        try:  # refused before any work
+            prepare_case(entry, case, trials, baselines)
+        except ValueError as exc:  # a method spec that does not resolve
+            raise ConfigError(f"{entry.folder / 'zoo.yaml'}: {case.scenario}: {exc}") from None
     fam = entry.spec.families
     if fam is not None:
         check_families(entry, work, trials, baselines)
@@ -424,12 +404,13 @@ def evaluate_entry(
         write_summary(rows, dst / "zoo_summary.csv")
     if fam is not None:
         from qkf.core.campaign import case_folder
-        from qkf.transfer_alignment.problem import SHIFT_FAMILIES
 
-        judged = [*fam.families, *(f for f in SHIFT_FAMILIES if f not in fam.families)]
+        run = families_run(entry, trials, baselines)
+        shift = entry.problem.families.shift
+        judged = [*run.families, *(f for f in shift if f not in run.families)]
         say(
-            f"judging on the families {', '.join(fam.families)} and the shift group "
-            f"{', '.join(SHIFT_FAMILIES)}, benchmark seed {fam.seed}"
+            f"judging on the families {', '.join(run.families)} and the shift group "
+            f"{', '.join(shift)}, benchmark seed {fam.seed}"
         )
         study = evaluate_families(entry, work, trials, progress, say, cache, baselines)
         for family in judged:
@@ -490,9 +471,11 @@ __all__ = [
     "evaluate_families",
     "evaluate_judging",
     "families_run",
+    "families_section",
     "family_policies",
     "judging_plan",
     "policy_methods",
+    "prepare_case",
     "promote",
     "train_entry",
 ]

@@ -20,8 +20,10 @@
       seed: 9000                 # a judging seed, [0, 1 000 000) (default 9000)
       baselines: [kf, kf-tuned, clock, hindsight]   # default: the families study's methods
 
-An entry of any problem (its training environment's, ``qkf.core.problem.problem_of_env``) is
-judged by ``qkf judge`` instead (``judge:`` and ``families:`` run transfer alignment's bench)::
+``judge:`` runs the problem's bench (:class:`qkf.core.studies.Bench`) and ``families:`` its
+families study (:class:`qkf.core.studies.FamiliesStudy`): transfer alignment has both. An entry
+of any problem (its training environment's, ``qkf.core.problem.problem_of_env``) can be judged
+by ``qkf judge``::
 
     judging:                     # qkf judge PROBLEM on the problem's families
       families: [gyro_noise_levels, gyro_control]   # default: every family of the problem
@@ -38,7 +40,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
@@ -47,8 +49,7 @@ from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
 from qkf.core.problem import PROBLEMS, Problem, problem_of_env
-from qkf.transfer_alignment.adaptive import TUNING_SEEDS
-from qkf.transfer_alignment.config import MAX_TRIALS
+from qkf.core.seed_groups import SEED_MARK
 
 ZOO_DIR = Path(__file__).resolve().parent
 """The shipped zoo: ``agents/zoo/`` (one folder per entry; ``best/``, ``best_<problem>/``: the
@@ -82,77 +83,38 @@ class JudgeCase(StrictModel):
     oracle: bool = True  # also run the truth-tuned oracle schedule (the upper reference)
 
 
-JUDGING_SEEDS = (0, TUNING_SEEDS[0])
-"""Benchmark seeds ``[low, high)`` whose results are reported (docs/environment.md, "Seed
-ranges"): below the tuning seeds of ``TUNING_SEEDS``."""
-FAMILIES_STUDY = "families"
-"""The study preset (configs/transfer_alignment/studies/families.yaml) a ``families:`` section
-runs, and whose method list is the default baselines."""
-REFERENCE = "kf-tuned"
-"""The baseline the families scores are normalised by (RMS_kf-tuned / RMS_policy)."""
-
-
-def study_families() -> list[str]:
-    """Every scenario family (``qkf.transfer_alignment.problem.FAMILIES``), in table order."""
-    from qkf.transfer_alignment.problem import FAMILIES
-
-    return list(FAMILIES)
-
-
-def study_methods() -> list[str]:
-    """The method list of the families study preset: the default baselines."""
-    from qkf.core import presets
-    from qkf.core.config import read_yaml_mapping
-    from qkf.transfer_alignment.config import STUDIES
-
-    path = presets.resolve(FAMILIES_STUDY, STUDIES)
-    methods = read_yaml_mapping(path, "study").get("methods")
-    if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
-        raise ValueError(f"{path}: methods: not a list of method specs")
-    return list(methods)
+FAMILIES_SEED = 9000
+"""The benchmark seed of a ``families:`` section that names none (a judging seed of transfer
+alignment, where the shipped entries' sections are judged)."""
 
 
 class FamiliesJudge(StrictModel):
-    """The judgement on the scenario families: ``qkf study families`` with the baselines and
-    the policy of every training seed (``NAME#SEED``) on the same trials, ``state_settled``."""
+    """The judgement on the scenario families: the problem's families study
+    (:class:`qkf.core.studies.FamiliesStudy`; transfer alignment's ``qkf study families``) with
+    the baselines and the policy of every training seed (``NAME#SEED``) on the same trials, on
+    the problem's judged metric. What depends on the problem (its families, judging seeds,
+    largest run, reference baseline and defaults) is checked and filled in by
+    :func:`families_for` when the entry is loaded."""
 
-    families: Annotated[list[str], Field(min_length=1)] = Field(default_factory=study_families)
-    trials: Annotated[int, Field(ge=2, le=MAX_TRIALS)] = 100  # per family
-    seed: int = 9000  # benchmark seed, in the judging range JUDGING_SEEDS
-    baselines: Annotated[list[str], Field(min_length=1)] = Field(default_factory=study_methods)
-    metric: Literal["state_settled"] = "state_settled"
+    families: Annotated[list[str], Field(min_length=1)] | None = None  # default: every family
+    trials: Annotated[int, Field(ge=2)] = 100  # per family
+    seed: int = FAMILIES_SEED  # benchmark seed, in the problem's judging range
+    baselines: Annotated[list[str], Field(min_length=1)] | None = None  # default: the study's
+    metric: str | None = None  # default (and the only one accepted): the problem's
     overrides: list[str] = Field(default_factory=list)  # --set style, of every family
-
-    @field_validator("seed")
-    @classmethod
-    def _judging_seed(cls, seed: int) -> int:
-        low, high = JUDGING_SEEDS
-        if not low <= seed < high:
-            raise ValueError(
-                f"{seed} is not a judging seed: judged results use benchmark seeds in "
-                f"[{low:,}, {high:,}) (docs/environment.md, 'Seed ranges'); "
-                f"[{TUNING_SEEDS[0]:,}, {TUNING_SEEDS[1]:,}) are the tuning seeds"
-            )
-        return seed
 
     @field_validator("families")
     @classmethod
-    def _known_families(cls, families: list[str]) -> list[str]:
-        known = study_families()
-        unknown = [f for f in families if f not in known]
-        if unknown:
-            raise ValueError(f"{', '.join(unknown)}: not a family; known: {', '.join(known)}")
-        twice = sorted({f for f in families if families.count(f) > 1})
+    def _once(cls, families: list[str] | None) -> list[str] | None:
+        twice = sorted({f for f in families or [] if families and families.count(f) > 1})
         if twice:
             raise ValueError(f"{', '.join(twice)} listed twice")
         return families
 
     @field_validator("baselines")
     @classmethod
-    def _baselines(cls, baselines: list[str]) -> list[str]:
-        from qkf.transfer_alignment.families import SEED_MARK
-
-        labels = [b.partition("=")[0].strip() for b in baselines]
+    def _baselines(cls, baselines: list[str] | None) -> list[str] | None:
+        labels = [b.partition("=")[0].strip() for b in baselines or []]
         seeded = [b for b in labels if SEED_MARK in b]
         if seeded:
             raise ValueError(
@@ -162,11 +124,53 @@ class FamiliesJudge(StrictModel):
         twice = sorted({b for b in labels if labels.count(b) > 1})
         if twice:
             raise ValueError(f"{', '.join(twice)} listed twice")
-        if REFERENCE not in labels:
-            raise ValueError(
-                f"must include {REFERENCE} (the policy's score is RMS_{REFERENCE} / RMS_policy)"
-            )
         return baselines
+
+
+def families_for(section: FamiliesJudge, problem: Problem) -> FamiliesJudge:
+    """``section`` checked against ``problem`` and its defaults filled in: every family of the
+    problem when none are named, the study preset's baselines, the problem's metric.
+    ``ValueError`` naming the field (``families.seed: …``): a problem without a families study,
+    a family it does not have, a seed outside its judging range, more trials than it runs, a
+    metric other than its judged one, baselines without the study's reference."""
+    study = problem.families_study
+    if study is None:
+        raise ValueError(
+            f"families: {problem.name} has no families study; an entry of it is judged with "
+            "judging: (qkf judge)"
+        )
+    known = list(problem.families.judged)
+    families = list(section.families) if section.families is not None else known
+    unknown = [f for f in families if f not in known]
+    if unknown:
+        raise ValueError(
+            f"families.families: {', '.join(unknown)}: not a family; known: {', '.join(known)}"
+        )
+    if not problem.seeds.judges(section.seed):
+        (low, high), (t_low, t_high) = problem.seeds.judging, problem.seeds.tuning
+        raise ValueError(
+            f"families.seed: {section.seed} is not a judging seed: judged results use benchmark "
+            f"seeds in [{low:,}, {high:,}) (docs/environment.md, 'Seed ranges'); "
+            f"[{t_low:,}, {t_high:,}) are the tuning seeds"
+        )
+    if section.trials > problem.max_trials:
+        raise ValueError(
+            f"families.trials: {section.trials:,} is more than {problem.name} runs "
+            f"({problem.max_trials:,})"
+        )
+    metric = problem.metric.name
+    if section.metric is not None and section.metric != metric:
+        raise ValueError(
+            f"families.metric: {section.metric}: the families study judges {metric} only"
+        )
+    baselines = section.baselines if section.baselines is not None else study.default_baselines()
+    if study.reference not in [b.partition("=")[0].strip() for b in baselines]:
+        raise ValueError(
+            f"families.baselines: must include {study.reference} (the policy's score is "
+            f"{metric} of {study.reference} / {metric} of the policy)"
+        )
+    return section.model_copy(update={"families": families, "baselines": baselines,
+                                      "metric": metric})  # fmt: skip
 
 
 class ProblemJudge(StrictModel):
@@ -287,12 +291,16 @@ def load_entry(name: str | Path, zoo: Path = ZOO_DIR) -> ZooEntry:
         problem = problem_of_env(train_cfg.env)
     except KeyError as exc:
         raise ConfigError(f"{spec_file}: train: {exc.args[0]}") from None
-    if problem.name != "transfer_alignment" and (spec.judge is not None or spec.families):
+    if spec.judge is not None and problem.bench is None:
         raise ConfigError(
-            f"{spec_file}: judge: and families: run transfer alignment's bench and families "
-            f"study; an entry of {problem.name} ({train_cfg.env}) is judged with judging: "
-            "(qkf judge)"
+            f"{spec_file}: judge: runs a problem's bench, which {problem.name} "
+            f"({train_cfg.env}) has not got; an entry of it is judged with judging: (qkf judge)"
         )
+    if spec.families is not None:
+        try:
+            spec = spec.model_copy(update={"families": families_for(spec.families, problem)})
+        except ValueError as exc:
+            raise ConfigError(f"{spec_file}: {exc}") from None
     return ZooEntry(folder.name, folder, spec, train_cfg)
 
 

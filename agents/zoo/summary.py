@@ -7,13 +7,14 @@ paired percentile bootstraps over trials: the same resamples of trials for every
 (:func:`qkf.core.stats.resample_counts`), so "beats" means the interval of the RMS ratio lies
 below 1.
 
-``evaluation/zoo_families.csv`` (the ``families:`` section), from the case folders of a
-``qkf study families`` run: per family, rliable's IQM over training seeds × trials of the score
-RMS_kf-tuned / RMS_policy (``state_settled``; above 1 is better) with its stratified bootstrap
-interval, the probability of improvement over each baseline, and the paired ratio of the
-shipped seed's policy to the yardsticks (:data:`VERSUS`). The numbers are those of the study's
-own ``families.md`` (the same functions of :mod:`qkf.transfer_alignment.families`, the same
-bootstrap settings and seed).
+``evaluation/zoo_families.csv`` (the ``families:`` section), from the problem's families
+study (transfer alignment's ``qkf study families``): per family, rliable's IQM over training
+seeds × trials of the score error_reference / error_policy (the judged metric, for transfer
+alignment RMS_kf-tuned / RMS_policy of ``state_settled``; above 1 is better) with its
+stratified bootstrap interval, the probability of improvement over each baseline, and the
+paired ratio of the shipped seed's policy to the yardsticks (:data:`VERSUS`). The numbers are
+those of the study's own ``families.md`` (the same functions, :mod:`qkf.core.seed_groups` and
+:mod:`qkf.core.versus`, the same bootstrap settings and seed).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 
 from agents.zoo.entry import JudgeCase, ZooEntry
 from qkf.core.io import atomic_write_text
+from qkf.core.seed_groups import SEED_MARK, seed_statistics
 from qkf.core.stats import (
     bootstrap_rms,
     interquartile_mean,
@@ -167,45 +169,39 @@ def comparison_rows(row: Callable[..., JudgeRow], v: VersusRow) -> list[JudgeRow
 
 
 def families_summary(
-    entry: ZooEntry, study: Path, families: list[str], shipped: int | None
+    entry: ZooEntry, folder: Path, families: list[str], shipped: int | None
 ) -> list[JudgeRow]:
-    """The rows of ``zoo_families.csv`` from the study folder ``study`` (one case folder per
-    family, named by the family): per family, ``iqm`` (policy ``NAME``, versus ``kf-tuned``:
+    """The rows of ``zoo_families.csv`` from the families study in ``folder`` (read by the
+    problem's :meth:`~qkf.core.studies.FamiliesStudy.results`), on the problem's judged metric:
+    per family, ``iqm`` (policy ``NAME``, versus ``kf-tuned``:
     the score it is normalised by; verdict ``better``/``worse`` when the interval lies above
     or below 1), ``p_improve`` per baseline (no interval: NaN) and the ``ratio`` of the
     shipped seed ``NAME#SEED`` to each method of :data:`VERSUS` that ran (paired interval).
     ``seed`` is the study's benchmark seed; the bootstrap settings are the cases' own."""
-    from qkf.core.campaign import case_folder
-    from qkf.core.manifest import read_manifest
-    from qkf.transfer_alignment.families import (
-        SEED_MARK,
-        reference_of,
-        seed_statistics,
-        versus_rows,
-    )
-    from qkf.transfer_alignment.results import load_bench, read_trials_csv
-
-    info = read_manifest(study, "study")
-    seed = int(info["seed"])
-    boot = load_bench(study / case_folder(families[0])).config.run.bootstrap  # as families.md
+    study = entry.problem.families_study
+    if study is None:
+        raise ValueError(f"{entry.problem.name} has no families study")
+    res = study.results(folder, families)
+    metric = entry.problem.metric.name
     mine = f"{entry.name}{SEED_MARK}"
     rows: list[JudgeRow] = []
     for family in families:
-        values = read_trials_csv(study / case_folder(family))
-        n = len(next(iter(values.values())))
-        others = [m for m in values if not m.startswith(mine)]
+        errors = res.errors[family]
+        n = len(next(iter(errors.values())))
+        others = [m for m in errors if not m.startswith(mine)]
 
         def row(policy: str, quantity: str, versus: str, value: float, lo: float, hi: float,
                 verdict: str = "", family: str = family, n: int = n) -> JudgeRow:  # fmt: skip
-            return JudgeRow(family, seed, n, "state_settled", policy, quantity, versus, value,
+            return JudgeRow(family, res.seed, n, metric, policy, quantity, versus, value,
                             lo, hi, verdict)  # fmt: skip
 
-        for stat in seed_statistics(values, others, boot.level, seed=seed):
+        reference = res.references[family]
+        for stat in seed_statistics(errors, others, reference, res.level, seed=res.seed):
             if stat["policy"] != entry.name:
                 continue
             iqm, lo, hi = (float(str(stat[k])) for k in ("iqm", "iqm_lo", "iqm_hi"))
             side = ratio_side(lo, hi)  # of a score: above 1 is better
-            rows.append(row(entry.name, "iqm", reference_of(values), iqm, lo, hi,
+            rows.append(row(entry.name, "iqm", reference, iqm, lo, hi,
                             ("inconclusive", "better", "worse")[side]))  # fmt: skip
             for b in others:
                 p = stat.get(f"p_improve_{b}")
@@ -214,7 +210,7 @@ def families_summary(
         if shipped is None:
             continue
         label = f"{mine}{shipped}"
-        for v in versus_rows(family, values, [label], boot.resamples, boot.level, seed):
+        for v in versus_rows(family, errors, [label], res.resamples, res.level, res.seed):
             if v.other in VERSUS:
                 rows += comparison_rows(row, v)
     return rows

@@ -48,6 +48,9 @@ class Environment:
     the output's notes; ``ValueError`` when the policy does not fit the config.
     ``policy_check``: the same refusal before any work, from the options, the config and the
     number of actions alone (``fn(options, cfg, n_actions)``; the runner calls it too).
+    ``datasets``: ``"module:object"`` whose ``plan(scenario, methods, trials, seed, controls,
+    reward, period_s, out, overrides)`` checks a ``qkf dataset`` run before any work and whose
+    ``make(plan, on_method)`` writes its Minari datasets (episodes of the id driven by methods).
     """
 
     id: str  # the Gymnasium id, "namespace/Name-vN"
@@ -66,6 +69,7 @@ class Environment:
     policy_check: str | None = None  # "module:function": fn(options, cfg, n_actions), ValueError
     defaults: tuple[tuple[str, Any], ...] = ()  # keyword defaults of the id (v4: controls)
     options: tuple[str, ...] = ()  # keywords a training config's env_kwargs may set
+    datasets: str | None = None  # "module:object": qkf dataset's plan and make, if it has them
 
     @property
     def kwargs(self) -> dict[str, Any]:

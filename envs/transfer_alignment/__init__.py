@@ -84,6 +84,7 @@ for _id, _obs in ENV_OBSERVATIONS.items():
             description=_DESCRIPTIONS[_obs],
             defaults=(("controls", "kappa"),) if _obs == "v4" else (),
             options=V4_OPTIONS if _obs == "v4" else (),
+            datasets="envs.transfer_alignment.datasets:DATASETS" if _obs == "v4" else None,
         )
     )
 

@@ -27,7 +27,9 @@ A problem has:
   specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials,
   each giving the judged metric per trial: what :mod:`qkf.core.family_judging` compares. The
   tuned methods tune on ``tuning_cfg``'s tuning trials: on a shift family, those of
-  :attr:`Families.shift_tuned_on`.
+  :attr:`Families.shift_tuned_on`;
+- ``bench`` and ``families_study``: its benchmark with ``qkf bench``'s files and its families
+  study (:mod:`qkf.core.studies`), or ``None`` where it has none.
 
 Adding a problem: write the object in the package's ``problem.py`` and register it with
 ``PROBLEMS.register_spec(name, "package.problem:PROBLEM")`` below, or, from another
@@ -44,6 +46,12 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from qkf.core.registry import Registry
+from qkf.core.studies import Bench, FamiliesStudy
+
+
+class MethodOutputError(ValueError):
+    """A method returned something that does not fit its problem's contract; the message says
+    what (exit 2 at the command line: the method's input, not qkf, is at fault)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +115,8 @@ class Problem(Protocol):
     metric: JudgedMetric
     seeds: SeedRanges
     max_trials: int
+    bench: Bench | None
+    families_study: FamiliesStudy | None
 
     @property
     def methods(self) -> Registry[Any]:
@@ -170,6 +180,7 @@ __all__ = [
     "PROBLEMS",
     "Families",
     "JudgedMetric",
+    "MethodOutputError",
     "Problem",
     "SeedRanges",
     "problem_of_env",

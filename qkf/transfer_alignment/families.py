@@ -28,7 +28,6 @@ study and ``qkf plot`` give the same table as a fresh run.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from qkf.core.plotting import Figure, plt
+from qkf.core.seed_groups import seed_statistics as core_seed_statistics
 from qkf.core.stats import (
     bootstrap_rms,
     min_verdict_trials,
@@ -80,8 +80,6 @@ FAMILIES_COLUMNS: tuple[str, ...] = (
     "ratio_vs_kf_tuned", "ratio_lo", "ratio_hi",
     "median_ratio", "median_lo", "median_hi", "p_improve", "worst_decile", "verdict",
 )  # fmt: skip
-SEED_MARK = "#"
-"""``NAME#SEED`` labels: the training seeds of one policy, pooled by :func:`seed_statistics`."""
 
 
 @dataclass(frozen=True)
@@ -206,54 +204,13 @@ def seed_statistics(
     reps: int = 2000,
     seed: int = 0,
 ) -> list[dict[str, object]]:
-    """For every policy run over several training seeds (labels ``NAME#SEED``) among a case's
-    per-trial ``values`` (its ``trials.csv``): rliable's IQM over seeds × trials of the
-    normalised score ``RMS_kf-tuned / RMS_m`` per trial (``state_settled``; above 1 is better),
-    with its stratified bootstrap interval, and the probability of improvement over each
-    baseline (P(score_policy > score_baseline), rliable's Mann–Whitney form averaged over
-    trials). Empty without seed groups or kf-tuned."""
-    reference = reference_of(values)
-    if reference not in values:
-        return []
+    """:func:`qkf.core.seed_groups.seed_statistics` of a case's per-trial ``values`` (its
+    ``trials.csv``) on ``state_settled``, normalised by :func:`reference_of` (``kf-tuned``, on a
+    shift family ``kf-tuned-mixed``): per policy ``NAME#SEED``, the IQM over seeds × trials of
+    ``RMS_reference / RMS_m`` with its interval and P(improve) over each baseline."""
     j = METRIC_COLUMNS.index(STATE_SETTLED)
-    ref = values[reference][:, j]
-    groups: dict[str, list[str]] = {}
-    for m in values:
-        name, mark, _ = m.partition(SEED_MARK)
-        if mark:
-            groups.setdefault(name, []).append(m)
-    if not groups:
-        return []
-    from rliable import library as rly
-    from rliable import metrics as rlm
-
-    def score(m: str) -> np.ndarray:
-        return ref / values[m][:, j]
-
-    out: list[dict[str, object]] = []
-    state = np.random.RandomState(seed)
-    for name, labels in sorted(groups.items()):
-        runs = np.stack([score(m) for m in labels])  # (seeds, trials)
-        with warnings.catch_warnings():  # rliable hands arch a RandomState (deprecated there)
-            warnings.simplefilter("ignore", FutureWarning)
-            point, intervals = rly.get_interval_estimates(
-                {name: runs}, lambda x: np.array([rlm.aggregate_iqm(x)]), reps=reps,
-                confidence_interval_size=level, random_state=state,
-            )  # fmt: skip
-        row: dict[str, object] = {
-            "policy": name,
-            "seeds": len(labels),
-            "iqm": float(point[name][0]),
-            "iqm_lo": float(intervals[name][0, 0]),
-            "iqm_hi": float(intervals[name][1, 0]),
-        }
-        for b in baselines:
-            if b in values and SEED_MARK not in b:
-                row[f"p_improve_{b}"] = float(
-                    rlm.probability_of_improvement(runs, score(b)[None, :])
-                )
-        out.append(row)
-    return out
+    errors = {m: v[:, j] for m, v in values.items()}
+    return core_seed_statistics(errors, baselines, reference_of(values), level, reps, seed)
 
 
 def families_markdown(

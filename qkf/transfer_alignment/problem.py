@@ -16,6 +16,7 @@ import numpy as np
 from qkf.core.problem import Families, JudgedMetric, SeedRanges
 from qkf.core.registry import Registry
 from qkf.transfer_alignment.adaptive import MAX_TRIALS, TUNING_SEEDS
+from qkf.transfer_alignment.problem_studies import BENCH, FAMILIES_STUDY_RUNNER
 
 FAMILIES: tuple[str, ...] = (
     "steady_random",
@@ -77,6 +78,8 @@ class TransferAlignment:
     # docs/environment.md, "Seed ranges": judging below the tuning seeds
     seeds = SeedRanges(judging=(0, TUNING_SEEDS[0]), tuning=TUNING_SEEDS)
     max_trials = MAX_TRIALS
+    bench = BENCH  # qkf bench: qkf evaluate, a zoo entry's judge: cases
+    families_study = FAMILIES_STUDY_RUNNER  # qkf study families: a zoo entry's families:
 
     @property
     def methods(self) -> Registry[Any]:

@@ -31,6 +31,7 @@ from pydantic import Field, model_validator
 from qkf.core import presets
 from qkf.core.campaign import case_folder
 from qkf.core.config import ConfigError, StrictModel, read_yaml_mapping, validate
+from qkf.core.method_specs import pick_baselines, spec_label
 from qkf.transfer_alignment.benchmark import parse_methods, refuse_tuning_seed
 from qkf.transfer_alignment.config import MAX_TRIALS, PRESETS, STUDIES, Config, load_config
 from qkf.transfer_alignment.methods import resolve_method_settings
@@ -181,25 +182,6 @@ def _narrow(
     if seed is not None:
         update["seed"] = seed
     return study.model_copy(update=update)
-
-
-def spec_label(spec: str) -> str:
-    """The label a method spec is reported under, as written (``LABEL=SPEC``: LABEL)."""
-    label, sep, _ = spec.partition("=")
-    return label.strip() if sep else spec.strip()
-
-
-def pick_baselines(specs: list[str], wanted: list[str]) -> list[str]:
-    """The specs of ``specs`` whose labels are in ``wanted``, in their order; ``ConfigError``
-    for a wanted label that is not there (naming those that are), or for none wanted."""
-    labels = [spec_label(s) for s in specs]
-    unknown = [w for w in wanted if w not in labels]
-    if unknown or not wanted:
-        raise ConfigError(
-            f"--baselines: {', '.join(unknown) or 'none given'}: not among the methods; "
-            f"choose from {', '.join(labels)}"
-        )
-    return [s for s, label in zip(specs, labels, strict=True) if label in wanted]
 
 
 def study_cases(study: Study) -> list[Case]:

@@ -23,14 +23,11 @@ from typing import Protocol, TypeVar, runtime_checkable
 import numpy as np
 
 from qkf.core.config import StrictModel
+from qkf.core.problem import MethodOutputError
 from qkf.transfer_alignment.config import Config, SettingsT, builtin_section, read_section
 from qkf.transfer_alignment.filter import FilterRecord, TransferAlignmentKF
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
-
-
-class MethodOutputError(ValueError):
-    """A method returned something that does not fit the contract; the message says what."""
 
 
 @dataclass

@@ -671,3 +671,14 @@ def _publish(staging: Path, plan: DatasetPlan) -> list[Path]:
     for i, t in zip(plan.ids, targets, strict=True):
         os.rename(staging / i, t)
     return targets
+
+
+class Datasets:
+    """``qkf/TransferAlignment-v4``'s ``qkf dataset`` (its ``datasets`` entry in
+    :data:`envs.ENVIRONMENTS`): :func:`plan_datasets` and :func:`make_datasets`."""
+
+    plan = staticmethod(plan_datasets)
+    make = staticmethod(make_datasets)
+
+
+DATASETS = Datasets()
