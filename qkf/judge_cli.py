@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from qkf.core.cli_support import out, out_dir, refused
+from qkf.core.cli_support import NoCacheOption, out, out_dir, refused
 
 app = typer.Typer(no_args_is_help=True)
 
@@ -48,10 +48,13 @@ def judge(
     resamples: Annotated[int, typer.Option(help="Bootstrap resamples.")] = 2000,
     overwrite: Annotated[bool, typer.Option(help="Replace an earlier judging run.")] = False,
     progress: Annotated[bool, typer.Option(help="Progress bars.")] = True,
+    no_cache: NoCacheOption = False,
 ) -> None:
     """Run every method on the same trials of each family and compare each focus method with
     every other: pooled RMS ratio and median per-trial ratio with paired bootstrap intervals,
-    P(improve), worst decile, verdict. Writes trials.csv, versus.csv, versus.md and run.json."""
+    P(improve), worst decile, verdict. Writes trials.csv, versus.csv, versus.md and run.json.
+    Results of the methods are read from and stored in the results cache (docs/caching.md);
+    run.json counts the hits and misses per family and method."""
     from qkf.core.family_judging import (
         RUN_KIND,
         judge_rows,
@@ -59,6 +62,7 @@ def judge(
         run_judging,
         write_judging,
     )
+    from qkf.core.results_cache import CacheLog
 
     folder = out_dir(out_path, RUN_KIND, overwrite)
     with refused():
@@ -70,7 +74,11 @@ def judge(
     def on_family(i: int, n: int, family: str) -> None:
         out.print(f"family {i}/{n}: {family}", highlight=False)
 
-    errors = run_judging(plan, progress, on_family)
+    cache: dict[str, CacheLog] | None = None if no_cache else {}
+    errors = run_judging(plan, progress, on_family, cache)
     rows = judge_rows(plan, errors)
-    write_judging(plan, errors, rows, folder)
+    write_judging(plan, errors, rows, folder, cache)
+    damaged = [p for log in (cache or {}).values() for p in log.problems]
+    if damaged:
+        out.print(f"{len(damaged)} damaged results-cache entries recomputed (run.json)")
     out.print(f"wrote {folder}/versus.md, versus.csv, trials.csv", highlight=False)

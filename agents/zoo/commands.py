@@ -334,18 +334,26 @@ def judging_plan(
 
 
 def evaluate_judging(
-    entry: ZooEntry, plan: JudgePlan, work: Path, progress: bool, say: Callable[[str], None]
+    entry: ZooEntry,
+    plan: JudgePlan,
+    work: Path,
+    progress: bool,
+    say: Callable[[str], None],
+    cache: bool = False,
 ) -> tuple[Path, dict[str, dict[str, np.ndarray]]]:
-    """Run ``plan`` (:func:`judging_plan`) into ``WORK/judging/``, replacing an earlier one;
-    returns the folder and the metric per family, method and trial."""
+    """Run ``plan`` (:func:`judging_plan`) into ``WORK/judging/``, replacing an earlier one
+    (``cache``: results read from and stored in the results cache); returns the folder and the
+    metric per family, method and trial."""
     from qkf.core.family_judging import judge_rows, run_judging, write_judging
+    from qkf.core.results_cache import CacheLog
 
     def on_family(i: int, n: int, family: str) -> None:
         say(f"family {i}/{n}: {family}")
 
-    errors = run_judging(plan, progress, on_family)
+    logs: dict[str, CacheLog] | None = {} if cache else None
+    errors = run_judging(plan, progress, on_family, logs)
     out = work / JUDGING_DIR
-    write_judging(plan, errors, judge_rows(plan, errors), out)
+    write_judging(plan, errors, judge_rows(plan, errors), out, logs)
     return out, errors
 
 
@@ -427,7 +435,7 @@ def evaluate_entry(
             f"judging on the {plan.problem.name} families {', '.join(plan.families)}, "
             f"benchmark seed {plan.seed}"
         )
-        folder, errors = evaluate_judging(entry, plan, work, progress, say)
+        folder, errors = evaluate_judging(entry, plan, work, progress, say, cache)
         for name in ("versus.md", "versus.csv", "trials.csv"):
             stem, suffix = name.split(".")
             _copy(folder / name, dst / f"judging_seed{plan.seed}_{stem}.{suffix}")

@@ -17,7 +17,8 @@ Written by :func:`write_judging` (all files at once, :func:`~qkf.core.io.staged_
 - ``trials.csv``: ``family, trial`` and one column per method, the judged metric per trial;
 - ``versus.csv``: one row per family, focus method and other method (:data:`VERSUS_COLUMNS`);
 - ``versus.md``: the same as tables, one per family;
-- ``run.json``: the problem, families, method specs, trials, seed, bootstrap and overrides.
+- ``run.json``: the problem, families, method specs, trials, seed, bootstrap and overrides, and
+  what the results cache gave per family and method (``cache``; docs/caching.md).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from qkf.core.io import atomic_write_csv, atomic_write_text, staged_directory
 from qkf.core.manifest import manifest, write_manifest
 from qkf.core.problem import PROBLEMS, Problem
 from qkf.core.registry import RegistryError
+from qkf.core.results_cache import CacheLog, cache_enabled
 from qkf.core.versus import VersusRow, versus_rows
 
 RUN_KIND = "judge"
@@ -144,16 +146,20 @@ def run_judging(
     plan: JudgePlan,
     progress: bool = False,
     on_family: Callable[[int, int, str], None] | None = None,
+    cache: dict[str, CacheLog] | None = None,
 ) -> dict[str, dict[str, np.ndarray]]:
     """Family → label → the judged metric per trial (trials,); ``on_family(i, n, family)``
-    before each family."""
+    before each family. ``cache``: use the results cache (unless ``$QKF_NO_CACHE``), each
+    family's lookups logged into ``cache[family]`` (None: compute everything)."""
     out = {}
+    use_cache = cache is not None and cache_enabled()
     runs = zip(plan.families, plan.configs, plan.tuning_configs, strict=True)
     for i, (fam, cfg, tuning_cfg) in enumerate(runs, start=1):
         if on_family is not None:
             on_family(i, len(plan.families), fam)
+        log = cache.setdefault(fam, CacheLog()) if cache is not None and use_cache else None
         out[fam] = plan.problem.trial_errors(
-            cfg, plan.specs, plan.trials, plan.seed, progress, tuning_cfg=tuning_cfg
+            cfg, plan.specs, plan.trials, plan.seed, progress, tuning_cfg=tuning_cfg, cache=log
         )
     return out
 
@@ -211,9 +217,12 @@ def write_judging(
     errors: dict[str, dict[str, np.ndarray]],
     rows: Sequence[VersusRow],
     out: str | Path,
+    cache: dict[str, CacheLog] | None = None,
 ) -> Path:
     """Write the run's files into ``out`` (module docstring), replacing an earlier judging run
-    there whole; returns ``out``."""
+    there whole; returns ``out``. ``cache``: the results-cache lookups of :func:`run_judging`,
+    recorded in ``run.json`` (``cache``: per family and method, the count of hits, misses,
+    damaged entries and results not cached; ``"off"`` without)."""
     with staged_directory(out) as stage:
         trial_rows = [
             [fam, t, *(float(errors[fam][label][t]) for label in plan.labels)]
@@ -245,9 +254,21 @@ def write_judging(
                 trials=plan.trials,
                 seed=plan.seed,
                 bootstrap={"level": plan.level, "resamples": plan.resamples},
+                cache=_cache_record(cache),
             ),
         )
     return Path(out)
+
+
+def _cache_record(cache: dict[str, CacheLog] | None) -> object:
+    """What ``run.json`` says of the results cache: ``"off"``, or per family the lookups of each
+    method and the damaged entries found (recomputed)."""
+    if not cache:
+        return "off"
+    return {
+        fam: {"lookups": log.counts, **({"damaged": log.problems} if log.problems else {})}
+        for fam, log in cache.items()
+    }
 
 
 __all__ = [

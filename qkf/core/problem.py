@@ -23,11 +23,13 @@ A problem has:
   refusal (``ConfigError``) of a run too large for memory, before any work;
 - ``check_methods(cfg, specs)``: the refusal of a method that cannot run on a family's config
   (a method object may offer ``check(cfg)``; ``policy:PATH`` does), before any work;
-- ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed, tuning_cfg=)``: method
-  specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials,
-  each giving the judged metric per trial: what :mod:`qkf.core.family_judging` compares. The
-  tuned methods tune on ``tuning_cfg``'s tuning trials: on a shift family, those of
-  :attr:`Families.shift_tuned_on`;
+- ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed, tuning_cfg=, cache=)``:
+  method specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same
+  trials, each giving the judged metric per trial: what :mod:`qkf.core.family_judging`
+  compares. The tuned methods tune on ``tuning_cfg``'s tuning trials: on a shift family, those
+  of :attr:`Families.shift_tuned_on`. With a ``cache`` log, results are read from and stored
+  in the results cache (:mod:`qkf.core.results_cache`; a stored result is the fresh one, byte
+  for byte) and each lookup is counted in the log;
 - ``bench`` and ``families_study``: its benchmark with ``qkf bench``'s files and its families
   study (:mod:`qkf.core.studies`), or ``None`` where it has none.
 
@@ -46,6 +48,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from qkf.core.registry import Registry
+from qkf.core.results_cache import CacheLog
 from qkf.core.studies import Bench, FamiliesStudy
 
 
@@ -153,11 +156,13 @@ class Problem(Protocol):
         seed: int,
         progress: bool = False,
         tuning_cfg: Any = None,
+        cache: CacheLog | None = None,
     ) -> dict[str, np.ndarray]:
         """Label → the judged metric per trial (trials,), every method on the trials
         ``0 … trials − 1`` of benchmark seed ``seed`` (the same data: paired); the tuned
         methods tune on ``tuning_cfg``'s tuning trials (None: ``cfg``'s; see
-        :attr:`Families.shift_tuned_on`)."""
+        :attr:`Families.shift_tuned_on`). ``cache``: use the results cache and count its
+        lookups there (None: compute everything)."""
         ...
 
 

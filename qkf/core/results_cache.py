@@ -118,6 +118,31 @@ def code_fingerprint(package_dirs: Iterable[Path]) -> dict[str, Any]:
     }
 
 
+class CacheWarning(UserWarning):
+    """A damaged results-cache entry was found (and recomputed, never used)."""
+
+
+STATUSES = ("hit", "miss", "corrupt", "off")
+"""What one lookup gave: the stored result, none stored, a damaged entry (removed and
+recomputed), or a result that is not cached (the cache is off, or the method cannot be
+described)."""
+
+
+@dataclass
+class CacheLog:
+    """What a run's lookups gave, per method label: the count of each of :data:`STATUSES` (and
+    of any further ones a problem counts, e.g. a tuning's ``prepare_hit``), and the damaged
+    entries found. What ``run.json`` records."""
+
+    counts: dict[str, dict[str, int]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+    def add(self, label: str, status: str, times: int = 1) -> None:
+        """Count ``times`` lookups of ``label`` that gave ``status``."""
+        per = self.counts.setdefault(label, dict.fromkeys(STATUSES, 0))
+        per[status] = per.get(status, 0) + times
+
+
 class CorruptEntry(Exception):
     """An entry whose body does not match its checksum, or that cannot be read."""
 
@@ -242,7 +267,8 @@ def describe(obj: Any, _depth: int = 0) -> Any:
 
     An object with a ``cache_token()`` method describes itself. Otherwise a function, class or
     instance defined in the ``qkf`` package is named by module and qualified name (its code
-    is in :func:`code_fingerprint`), a dataclass or plain instance adds its fields, and
+    is in :func:`code_fingerprint`), a closure adds the values it captured, a dataclass or
+    plain instance adds its fields, and
     numbers, strings, lists and arrays are themselves. Code from elsewhere is not described:
     its source is not in the fingerprint.
     """
@@ -271,6 +297,23 @@ def describe(obj: Any, _depth: int = 0) -> Any:
                 return None
             out[str(k)] = d
         return out
+    closure = getattr(obj, "__closure__", None)
+    if closure and callable(obj) and not isinstance(obj, type):
+        # a function made inside another: what it captured is part of what it computes (two
+        # closures of one factory share a name), so the captured values are described too
+        cells = []
+        for cell in closure:
+            try:
+                value = cell.cell_contents
+            except ValueError:  # an empty cell: nothing to describe it by
+                return None
+            cells.append(describe(value, _depth + 1))
+            if cells[-1] is None and value is not None:
+                return None
+        module = getattr(obj, "__module__", "") or ""
+        if module != "qkf" and not module.startswith("qkf."):
+            return None
+        return {"closure": f"{module}:{obj.__qualname__}", "cells": cells}
     if isinstance(obj, functools.partial):
         parts = [describe(obj.func, _depth + 1), describe(obj.args, _depth + 1),
                  describe(obj.keywords, _depth + 1)]  # fmt: skip

@@ -11,6 +11,7 @@ their episodes from and the tuning seeds; the tuned methods tune on the first
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ import numpy as np
 from qkf.core.config import ConfigError
 from qkf.core.problem import Families, JudgedMetric, SeedRanges
 from qkf.core.registry import Registry
+from qkf.core.results_cache import CacheLog
 from qkf.redundant_gyros.config import MAX_CHUNK_TRIAL_EPOCHS, MAX_TRIALS, epochs_of
 
 FAMILIES: tuple[str, ...] = ("gyro_noise_levels", "five_gyros_onset_drift", "gyro_mixture")
@@ -131,21 +133,104 @@ class RedundantGyros:
         seed: int,
         progress: bool = False,
         tuning_cfg: Any = None,
+        cache: CacheLog | None = None,
     ) -> dict[str, np.ndarray]:
         """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
-        ones tuned on :meth:`tuning`'s episodes of ``tuning_cfg`` (None: ``cfg``)."""
+        ones tuned on :meth:`tuning`'s episodes of ``tuning_cfg`` (None: ``cfg``). ``cache``:
+        each method's ``J`` per episode is read from the results cache when stored under
+        :func:`results_key` and stored there when computed (a method that cannot be described:
+        ``off``); the episodes are simulated only if some method is computed."""
         from qkf.core.montecarlo import progress_bar
+        from qkf.core.results_cache import Entry, ResultsCache
 
         methods = _resolved(specs)
-        episodes = self.simulate(cfg, seed, range(trials))
-        tuning = self.tuning(cfg if tuning_cfg is None else tuning_cfg)
+        store = ResultsCache() if cache is not None else None
+        tuning_of = cfg if tuning_cfg is None else tuning_cfg
+        data: tuple[Any, Any] | None = None
         out = {}
         with progress_bar(len(methods), "gyro methods", progress, unit="methods") as bar:
             for label, method in methods:
                 bar.note(label)
-                out[label] = np.sqrt(np.asarray(method(cfg, episodes, tuning), dtype=float))
+                key = None if store is None else results_key(cfg, tuning_of, method, seed, trials)
+                j = _stored_j(store, key, label, cache)
+                if j is None:
+                    if data is None:  # simulated once, only if some method is computed
+                        data = (self.simulate(cfg, seed, range(trials)), self.tuning(tuning_of))
+                    j = np.asarray(method(cfg, data[0], data[1]), dtype=float)
+                    if store is not None and key is not None:
+                        store.put(key, Entry({"j": j}, {"label": label}))
+                out[label] = np.sqrt(j)
                 bar()
         return out
+
+
+RESULTS_KEY_VERSION = 1
+"""Bumped when what a gyro judging entry holds changes."""
+
+
+def results_key(
+    cfg: Any, tuning_cfg: Any, method: Any, seed: int, trials: int
+) -> dict[str, Any] | None:
+    """The results-cache key of ``method``'s ``J`` per episode on episodes ``seed … seed +
+    trials − 1`` of ``cfg``, tuned on :meth:`RedundantGyros.tuning`'s episodes of
+    ``tuning_cfg``: the code (every source of ``qkf``, the numerical libraries, the CPU), both
+    configs as they bear on results (not their names) and the method
+    (:func:`~qkf.core.results_cache.describe`; a policy: its model's SHA-256). None when the
+    method cannot be described: it is not cached."""
+    from qkf.core.results_cache import code_fingerprint, describe
+
+    token = describe(method)
+    if token is None:
+        return None
+
+    def bearing(c: Any) -> dict[str, Any]:
+        data = c.model_dump(mode="json")
+        for name in ("name", "description"):
+            data.pop(name, None)
+        return dict(data)
+
+    return {
+        "kind": "redundant_gyros.trial_j",
+        "version": RESULTS_KEY_VERSION,
+        "code": code_fingerprint([_QKF]),
+        "config": bearing(cfg),
+        "tuning": {
+            "config": bearing(tuning_cfg),
+            "seed": PROBLEM.seeds.tuning[0],
+            "episodes": TUNING_EPISODES,
+        },
+        "method": token,
+        "seed": seed,
+        "trials": trials,
+    }
+
+
+def _stored_j(
+    store: Any, key: dict[str, Any] | None, label: str, cache: CacheLog | None
+) -> np.ndarray | None:
+    """The stored ``J`` per episode under ``key``, counted in ``cache`` (``off`` without a key);
+    a damaged entry is reported (``CacheWarning``, ``cache.problems``) and gives None."""
+    from qkf.core.results_cache import CacheWarning
+
+    if store is None or cache is None:
+        return None
+    if key is None:
+        cache.add(label, "off")
+        return None
+    lookup = store.get(key)
+    cache.add(label, lookup.status)
+    if lookup.status == "corrupt":
+        cache.problems.append(lookup.detail)
+        warnings.warn(
+            f"damaged results-cache entry of {label}, recomputed: {lookup.detail}",
+            CacheWarning,
+            stacklevel=3,
+        )
+    return None if lookup.entry is None else np.asarray(lookup.entry.arrays["j"])
+
+
+_QKF = Path(__file__).resolve().parents[1]
+"""The ``qkf`` package folder: its sources name the code of every gyro method."""
 
 
 def _resolved(specs: Sequence[str]) -> list[tuple[str, Any]]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from qkf.core.config import ConfigError
 from qkf.core.montecarlo import ProgressBar, chunk_ids, progress_bar, run_chunks
-from qkf.core.results_cache import ResultsCache, cache_enabled
+from qkf.core.results_cache import CacheWarning, ResultsCache, cache_enabled
 from qkf.core.stats import (
     ErrorAccumulator,
     average_nees_band,
@@ -114,10 +114,6 @@ class BenchResult:
     weights: np.ndarray | None = None
     # results cache, per method: chunks that were a hit, a miss, a damaged entry, or not cached
     cache: dict[str, dict[str, int]] = field(default_factory=dict)
-
-
-class CacheWarning(UserWarning):
-    """A damaged results-cache entry was found (and recomputed, never used)."""
 
 
 def kappa_sampling(cfg: Config) -> int:

@@ -7,6 +7,7 @@ workload check are imported on first use, so that reading the problem stays chea
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import numpy as np
 
 from qkf.core.problem import Families, JudgedMetric, SeedRanges
 from qkf.core.registry import Registry
+from qkf.core.results_cache import CacheLog, CacheWarning
 from qkf.transfer_alignment.adaptive import MAX_TRIALS, TUNING_SEEDS
 from qkf.transfer_alignment.problem_studies import BENCH, FAMILIES_STUDY_RUNNER
 
@@ -128,13 +130,15 @@ class TransferAlignment:
         seed: int,
         progress: bool = False,
         tuning_cfg: Any = None,
+        cache: CacheLog | None = None,
     ) -> dict[str, np.ndarray]:
         """``state_settled`` per trial of each method of a
         :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. With ``tuning_cfg`` (a
         shift family: the training mixture, ``Families.shift_tuned_on``) every method that tunes
         on the judged config (it has a ``prepare``) tunes on ``tuning_cfg``'s scenario instead,
         as its ``-mixed`` twin does (:class:`~.methods.on_mixture.TunedOnScenario`); the
-        ``-mixed`` twins themselves are unchanged."""
+        ``-mixed`` twins themselves are unchanged. ``cache``: the bench's results cache, per
+        chunk of trials and per tuning (a damaged entry: a ``CacheWarning``)."""
         from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
         from qkf.transfer_alignment.methods import NamedMethod
         from qkf.transfer_alignment.methods.on_mixture import TunedOnMixture, TunedOnScenario
@@ -152,7 +156,19 @@ class TransferAlignment:
                 for m in named
             ]
 
-        res = run_benchmark(cfg, named, trials, seed, progress=progress)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CacheWarning)
+            res = run_benchmark(
+                cfg, named, trials, seed, progress=progress, cache=cache is not None
+            )
+        for w in caught:  # the damaged entries into the log, every warning on to the caller
+            if cache is not None and issubclass(w.category, CacheWarning):
+                cache.problems.append(str(w.message))
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        if cache is not None:  # per method: chunks found, computed, damaged; its tuning's
+            for label, counts in res.cache.items():
+                for status, times in counts.items():
+                    cache.add(label, status, times)
         j = METRIC_COLUMNS.index(self.metric.name)
         return {m.name: np.asarray(m.trial_values)[:, j] for m in res.methods}
 
