@@ -55,11 +55,34 @@ def _supports(command: list[str], option: str) -> bool:
     return option in res.stdout
 
 
+WRITTEN = ("bench", "gyros", "gyros_run", "fuse", "align", "digests.json")
+"""What a run writes into ``--out``: all that a rerun replaces there."""
+
+
+def prepare(out: Path) -> None:
+    """Make ``out`` ready: created if absent; an earlier ``--out`` of this script (it holds
+    ``digests.json``) loses what the script wrote there, nothing else; any other folder that is
+    not empty is refused (``SystemExit`` 2, before any work)."""
+    if out.exists() and not out.is_dir():
+        raise SystemExit(f"--out: {out} is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / "digests.json").is_file():
+        raise SystemExit(
+            f"--out: {out} is not empty and holds no digests.json: not an earlier --out of this "
+            "script, so nothing there is replaced; name an empty or new folder"
+        )
+    for name in WRITTEN:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+
+
 def run(out: Path) -> dict[str, str]:
-    """Run every command into ``out``; the digests of the files that carry numbers."""
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    """Run every command into ``out`` (:func:`prepare`); the digests of the files that carry
+    numbers."""
+    prepare(out)
     digests: dict[str, str] = {}
     for preset in BENCH_PRESETS:
         folder = out / "bench" / preset
@@ -94,7 +117,10 @@ def _digest(path: Path) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="folder to write (replaced)")
+    parser.add_argument(
+        "--out", type=Path, required=True,
+        help="folder to write: new, empty, or an earlier --out (what it wrote is replaced)",
+    )  # fmt: skip
     parser.add_argument("--against", type=Path, help="an earlier --out to compare with")
     args = parser.parse_args()
     digests = run(args.out)

@@ -161,20 +161,3 @@ def test_randomized_drift_family() -> None:
     step = np.abs(np.diff(d.calib[0, :, 0]))
     inside = (d.t[:-1] >= seg.start_s) & (d.t[:-1] < seg.end_s - 1)
     assert step[inside].mean() > 20 * step[~inside].mean()
-
-
-def test_epoch_windows_are_the_mask_over_every_epoch() -> None:
-    """The manoeuvre, gap and walk windows are found by bisection; they are the epochs that
-    the direct mask ``start <= t < end`` picks, bounds on the grid and beside it included."""
-    from qkf.transfer_alignment.scenario import _epochs_in
-
-    rng = np.random.default_rng(3)
-    for dt in (0.1, 0.25, 1.0, 1.7):
-        t = np.arange(400) * dt
-        bounds = np.concatenate([t[rng.integers(0, 400, 40)], rng.uniform(-5, 450 * dt, 40)])
-        bounds = np.concatenate([bounds, bounds - 1e-9, bounds + 1e-9, np.nextafter(bounds, 0)])
-        for start, end in rng.choice(bounds, (300, 2)):
-            mask = (t >= start) & (t < end)
-            np.testing.assert_array_equal(
-                np.flatnonzero(mask), np.arange(400)[_epochs_in(t, start, end)]
-            )

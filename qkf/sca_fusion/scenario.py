@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from qkf.core.quat import compose_rotvecs
+from qkf.core.time_grid import outside_windows
 from qkf.sca_fusion.config import Simulation
 from qkf.sca_fusion.differentiation import euler_term, quat_conj, quat_mul
 
@@ -89,13 +90,6 @@ def truth_derivatives(
     return q[:, 2], omega, omega_dot
 
 
-def _outside(t: np.ndarray, windows: list[tuple[float, float]]) -> np.ndarray:
-    keep = np.ones(t.shape, dtype=bool)
-    for lo, hi in windows:
-        keep &= ~((t >= lo) & (t < hi))
-    return keep
-
-
 def simulate(sim: Simulation) -> SimulatedData:
     """Draw one arc (or several, if ``data_gaps`` split it) from the simulation config."""
     seeds = np.random.SeedSequence(sim.seed).spawn(4)
@@ -123,8 +117,8 @@ def simulate(sim: Simulation) -> SimulatedData:
     gyro = euler_term(omega, np.asarray(sim.proof_mass_inertia))
     acc = (omega_dot + gyro + bias + eps) / (1.0 - scale)
 
-    data_keep = _outside(t, [(w.start_s, w.end_s) for w in sim.data_gaps])
-    sca_keep = data_keep & _outside(t, [(w.start_s, w.end_s) for w in sim.sca_gaps])
+    data_keep = outside_windows(t, [(w.start_s, w.end_s) for w in sim.data_gaps])
+    sca_keep = data_keep & outside_windows(t, [(w.start_s, w.end_s) for w in sim.sca_gaps])
     out_mask = np.zeros(n, dtype=bool)
     out_mask[out_idx] = True
     return SimulatedData(

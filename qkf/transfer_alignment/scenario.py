@@ -28,6 +28,7 @@ import numpy as np
 
 from qkf.core import units
 from qkf.core.quat import compose_rotvecs, cumulative_rotation
+from qkf.core.time_grid import epochs_in
 from qkf.transfer_alignment.config import (
     CalibrationJump,
     Config,
@@ -103,14 +104,9 @@ def true_rates(sc: Scenario) -> np.ndarray:
     for m in sc.maneuvers:
         # t is sorted: the covered epochs t_k ∈ [start − 1e-9, end − 1e-9) are one slice, found
         # by bisection (a mask over all epochs per manoeuvre costs N·M: 10 s for 10⁶ epochs)
-        on = _epochs_in(t, m.start_s - 1e-9, m.start_s + m.duration_s - 1e-9)
+        on = epochs_in(t, m.start_s - 1e-9, m.start_s + m.duration_s - 1e-9)
         w[on, _AXES[m.axis]] += m.rate_deg_s * units.DEG_PER_S
     return w
-
-
-def _epochs_in(t: np.ndarray, start: float, end: float) -> slice:
-    """The slice of the sorted times ``t`` with ``start <= t < end``."""
-    return slice(int(np.searchsorted(t, start, "left")), int(np.searchsorted(t, end, "left")))
 
 
 def measurement_mask(sc: Scenario) -> np.ndarray:
@@ -118,7 +114,7 @@ def measurement_mask(sc: Scenario) -> np.ndarray:
     t = np.arange(n_epochs(sc)) * sc.dt_s
     mask = np.ones(t.size, dtype=bool)
     for g in sc.ads.gaps:
-        mask[_epochs_in(t, g.start_s, g.end_s)] = False
+        mask[epochs_in(t, g.start_s, g.end_s)] = False
     return mask
 
 
@@ -127,7 +123,7 @@ def calibration_walk_sigma(sc: Scenario) -> np.ndarray:
     t = np.arange(n_epochs(sc)) * sc.dt_s
     sig = np.full(t.size, sc.calibration_walk.sigma_per_sqrt_s)
     for seg in sc.calibration_walk.segments:
-        sig[_epochs_in(t, seg.start_s, seg.end_s)] = seg.sigma_per_sqrt_s
+        sig[epochs_in(t, seg.start_s, seg.end_s)] = seg.sigma_per_sqrt_s
     return sig
 
 
