@@ -21,7 +21,8 @@ class BatchedUKF:
     """``n`` episodes of ``sampler``'s config, ``period`` epochs per decision period.
 
     After :meth:`advance`: ``sums`` (n, len(SUMS)) the period's :data:`SUMS`, ``err`` (n, period, 4)
-    ``x̂ − x`` per epoch (NaN where not run) and, with ``keep_cov``, ``cov`` (n, period, 4, 4).
+    ``x̂ − x`` per epoch (NaN where not run) and, with ``keep_cov``, ``cov`` (n, period, 4, 4)
+    the updated covariance and ``est`` (n, period, 4) the estimate per epoch.
     """
 
     def __init__(
@@ -43,6 +44,7 @@ class BatchedUKF:
         self.sums = np.zeros((n, len(SUMS)))
         self.err = np.empty((n, period, 4))
         self.cov = np.empty((n, period, 4, 4) if keep_cov else (n, 1, 4, 4))
+        self.est = np.empty((n, period, 4) if keep_cov else (n, 1, 4))
 
     def load(self, row: int, inputs: EpisodeInputs) -> None:
         """Episode ``inputs`` into row ``row`` (then :meth:`restart` it)."""
@@ -67,7 +69,7 @@ class BatchedUKF:
             self.x, self.p, self.z, self.rate, self.sampler.dt, self.truth, self.inv_sd,
             np.asarray(kappa, dtype=float), k0, k1, nominal, self.keep_cov,
             *c.geometry, c.weights, self.failed, self.nominal_failed, self.sums, self.err,
-            self.cov,
+            self.cov, self.est,
         )  # fmt: skip
         self.k = k1
         return k0, k1 - k0

@@ -16,10 +16,13 @@ judged ones. It returns ``J`` per judged episode (``inf`` where the filter fails
 ``clock``           the tuned clock: κ_a, then κ_c from a switch time (:mod:`.clock`)
 ``nis-adaptive``    innovation-based adaptive κ, its gain, half-life and start tuned
                     (:mod:`.nis_adaptive`)
-``constant-mixed``  ``constant``, ``clock``, ``nis-adaptive`` tuned instead on the episodes of
+``sage-husa``       Sage–Husa's process-noise estimate projected onto κ, its forgetting
+                    factor and start tuned (:mod:`.sage_husa`)
+``constant-mixed``  ``constant``, ``clock``, ``nis-adaptive``, ``sage-husa`` tuned instead on
+                    the episodes of
 ``clock-mixed``     the training mixture (``gyro_mixture``'s onsets in the judged config:
 ``nis-adaptive-``   :func:`with_mixture`): like for like with a policy trained on the mixture
-``mixed``           (the ``-mixed`` twins of transfer alignment)
+``mixed``, …        (the ``-mixed`` twins of transfer alignment)
 ``level-informed``  each episode's own best constant κ: knows the episode's noise levels
                     (a bound, not a causal method)
 ``hindsight``       each episode's best schedule found with the truth (:func:`~.hindsight.search`;
@@ -43,7 +46,7 @@ import numpy as np
 
 from qkf.core.config import ConfigError
 from qkf.core.registry import Registry, RegistryError
-from qkf.redundant_gyros import clock, nis_adaptive
+from qkf.redundant_gyros import clock, nis_adaptive, sage_husa
 from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros.config import GyrosConfig
 
@@ -88,6 +91,16 @@ def run_nis_adaptive(
     """The innovation-based rule of :mod:`.nis_adaptive`'s grid best over ``tuning``."""
     rule, _ = nis_adaptive.tune_on(nis_adaptive.EpisodeBatch.of_episodes(cfg, tuning))
     return nis_adaptive.run_rule_on(nis_adaptive.EpisodeBatch.of_episodes(cfg, episodes), rule)
+
+
+@GYRO_METHODS.register("sage-husa")
+def run_sage_husa(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """The Sage–Husa κ of :mod:`.sage_husa`'s grid best over ``tuning``."""
+    batch = nis_adaptive.EpisodeBatch.of_episodes
+    rule, _ = sage_husa.tune_on(batch(cfg, tuning, keep_cov=True))
+    return sage_husa.run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
 
 
 @GYRO_METHODS.register("level-informed")
@@ -147,6 +160,7 @@ for _name, _method in (
     ("constant", run_constant),
     ("clock", run_clock),
     ("nis-adaptive", run_nis_adaptive),
+    ("sage-husa", run_sage_husa),
 ):
     GYRO_METHODS.register(f"{_name}-mixed", _tuned_on_mixture(_method))
 
@@ -182,5 +196,6 @@ __all__ = [
     "run_hindsight",
     "run_level_informed",
     "run_nis_adaptive",
+    "run_sage_husa",
     "with_mixture",
 ]

@@ -61,14 +61,17 @@ class EpisodeBatch:
     settled: np.ndarray  # (N,) first judged epoch
 
     @classmethod
-    def of(cls, cfg: GyrosConfig, seeds: Sequence[int]) -> EpisodeBatch:
+    def of(cls, cfg: GyrosConfig, seeds: Sequence[int], keep_cov: bool = False) -> EpisodeBatch:
         """The episodes of ``env.reset(seed=s)`` for each of ``seeds``."""
-        return cls.of_episodes(cfg, [hs.episode(cfg, int(s)) for s in seeds])
+        return cls.of_episodes(cfg, [hs.episode(cfg, int(s)) for s in seeds], keep_cov)
 
     @classmethod
-    def of_episodes(cls, cfg: GyrosConfig, eps: Sequence[hs.Episode]) -> EpisodeBatch:
-        """Episodes drawn before, in one batched UKF."""
-        ukf = BatchedUKF(EpisodeSampler(cfg), len(eps), eps[0].period)
+    def of_episodes(
+        cls, cfg: GyrosConfig, eps: Sequence[hs.Episode], keep_cov: bool = False
+    ) -> EpisodeBatch:
+        """Episodes drawn before, in one batched UKF (``keep_cov``: it keeps each epoch's
+        covariance and estimate, :class:`~qkf.redundant_gyros.batched_ukf.BatchedUKF`)."""
+        ukf = BatchedUKF(EpisodeSampler(cfg), len(eps), eps[0].period, keep_cov)
         for row, e in enumerate(eps):
             ukf.load(row, e.inputs)
         return cls(cfg, ukf, np.array([e.settled_from for e in eps]))

@@ -248,6 +248,7 @@ def _period_row(
     sums: np.ndarray,
     err: np.ndarray,
     cov: np.ndarray,
+    est: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Step episode ``b`` of a batch over its epochs ``[k0[b], k1[b])`` with ``kappa[b]``;
     ``x`` (B, 4), ``p`` (B, 4, 4) and ``failed`` (B,) in place. A failed episode is not stepped.
@@ -255,7 +256,8 @@ def _period_row(
     Inputs per episode: ``z`` (B, K), ``rate`` (B, K, 3), ``truth`` (B, K, 4); shared:
     ``dt`` (K,), ``inv_sd`` (4,) = 1/σ₀. Outputs: ``sums`` (B, 6), the :data:`SUMS` over the
     epochs run; ``err`` (B, P, 4) ``x̂ − x`` per epoch of the period and, if ``keep_cov``,
-    ``cov`` (B, P, 4, 4), NaN where not run (past ``k1 − k0``, from a failure on). With
+    ``cov`` (B, P, 4, 4) the updated covariance and ``est`` (B, P, 4) the estimate ``x̂``, NaN
+    where not run (past ``k1 − k0``, from a failure on). With
     ``nominal`` a κ = 1 copy of each episode runs from the period's start over the same
     epochs (for ``sums[:, 2]``; ``nominal_failed`` if it fails, the agent's filter not). The
     geometry ``w`` … ``q2`` and the ``weights`` are those of :class:`CompiledSetup`."""
@@ -266,6 +268,7 @@ def _period_row(
     err[b] = np.nan
     if keep_cov:
         cov[b] = np.nan
+        est[b] = np.nan
     for j in range(sums.shape[1]):
         sums[b, j] = 0.0
     nominal_failed[b] = False
@@ -294,6 +297,7 @@ def _period_row(
         sums[b, 4] += norm2
         if keep_cov:
             for j in range(4):
+                est[b, i, j] = x[b, j]
                 for m in range(4):
                     cov[b, i, j, m] = p[b, j, m]
     if not nominal:
