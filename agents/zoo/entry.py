@@ -48,6 +48,7 @@ from pydantic import Field, field_validator, model_validator
 from agents.algorithms import ALGORITHMS
 from agents.config import TrainConfig, load_train_config
 from qkf.core.config import ConfigError, StrictModel, load_model
+from qkf.core.method_specs import spec_label
 from qkf.core.problem import PROBLEMS, Problem, problem_of_env
 from qkf.core.seed_groups import SEED_MARK
 
@@ -106,7 +107,9 @@ class FamiliesJudge(StrictModel):
     @field_validator("families")
     @classmethod
     def _once(cls, families: list[str] | None) -> list[str] | None:
-        twice = sorted({f for f in families or [] if families and families.count(f) > 1})
+        if families is None:
+            return None
+        twice = sorted({f for f in families if families.count(f) > 1})
         if twice:
             raise ValueError(f"{', '.join(twice)} listed twice")
         return families
@@ -114,7 +117,7 @@ class FamiliesJudge(StrictModel):
     @field_validator("baselines")
     @classmethod
     def _baselines(cls, baselines: list[str] | None) -> list[str] | None:
-        labels = [b.partition("=")[0].strip() for b in baselines or []]
+        labels = [spec_label(b) for b in baselines or []]
         seeded = [b for b in labels if SEED_MARK in b]
         if seeded:
             raise ValueError(
@@ -164,7 +167,7 @@ def families_for(section: FamiliesJudge, problem: Problem) -> FamiliesJudge:
             f"families.metric: {section.metric}: the families study judges {metric} only"
         )
     baselines = section.baselines if section.baselines is not None else study.default_baselines()
-    if study.reference not in [b.partition("=")[0].strip() for b in baselines]:
+    if study.reference not in [spec_label(b) for b in baselines]:
         raise ValueError(
             f"families.baselines: must include {study.reference} (the policy's score is "
             f"{metric} of {study.reference} / {metric} of the policy)"
