@@ -2,6 +2,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,6 +15,29 @@ TRAINING = ROOT / "configs" / "training"
 GYRO_CONFIGS = ROOT / "configs" / "redundant_gyros"
 FUSION_CONFIGS = ROOT / "configs" / "sca_fusion"
 ALIGNMENT_CONFIGS = ROOT / "configs" / "alignment"
+
+
+@pytest.fixture
+def bare_gyro_policy(tmp_path: Path) -> str:
+    """An untrained PPO of the v3 gyro environment (its random weights, made large, still choose
+    κ from the observation), saved bare: ``PATH@ENV_ID`` (``policy:`` prefixes a method spec).
+    Its episodes are shortened to 160 s (judged from 100 s)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
+
+    env = BatchedGyroSB3Env(
+        2, "gyro_noise_levels", observation="v3", overrides=["scenario.duration_s=160"]
+    )
+    model = PPO("MlpPolicy", env, n_steps=8, batch_size=16, seed=3, device="cpu")
+    first: Any = model.policy.mlp_extractor.policy_net[0]
+    with torch.no_grad():  # large weights: the greedy κ follows the observation
+        first.weight.mul_(30.0)
+        model.policy.action_net.weight.mul_(30.0)
+    path = tmp_path / "gyro_ppo.zip"
+    model.save(path)
+    return f"{path}@qkf/RedundantGyroCalibration-v3"
 
 
 @pytest.fixture

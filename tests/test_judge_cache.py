@@ -20,10 +20,10 @@ GYRO_SHORT = ["--set", "scenario.duration_s=160"]  # judged from 100 s on
 METHODS = "constant,constant-mixed,clock-mixed"  # two closures of one factory
 
 
-def _judge(out: Path, *extra: str) -> dict[str, object]:
+def _judge(out: Path, *extra: str, methods: str = METHODS) -> dict[str, object]:
     res = runner.invoke(
         app,
-        ["judge", "redundant_gyros", "--methods", METHODS, "--families", "gyro_control",
+        ["judge", "redundant_gyros", "--methods", methods, "--families", "gyro_control",
          "--trials", "3", "--out", str(out), "--no-progress", *GYRO_SHORT, *extra],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
@@ -38,20 +38,24 @@ def _lookups(run: dict[str, object], status: str) -> dict[str, int]:
 
 
 def test_a_cached_judgement_is_the_fresh_one_and_a_damaged_entry_is_recomputed(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bare_gyro_policy: str
 ) -> None:
+    """Plain methods, two closures of one factory and a saved policy: stored once, read back
+    byte for byte; a truncated entry recomputed; a policy retrained into the same path is a
+    miss (its key holds the model's SHA-256)."""
     monkeypatch.setenv("QKF_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.delenv("QKF_NO_CACHE", raising=False)
-    labels = METHODS.split(",")
-    fresh = _judge(tmp_path / "fresh", "--no-cache")
+    methods = f"{METHODS},policy:{bare_gyro_policy}"
+    labels = [*METHODS.split(","), "policy:gyro_ppo"]
+    fresh = _judge(tmp_path / "fresh", "--no-cache", methods=methods)
     assert fresh["cache"] == "off"
     assert not (tmp_path / "cache").exists()  # --no-cache neither reads nor writes
 
-    first = _judge(tmp_path / "first")
+    first = _judge(tmp_path / "first", methods=methods)
     assert _lookups(first, "miss") == dict.fromkeys(labels, 1)
     entries = ResultsCache(tmp_path / "cache").entries()
     assert len(entries) == len(labels)  # one per method: the -mixed closures do not collide
-    second = _judge(tmp_path / "second")
+    second = _judge(tmp_path / "second", methods=methods)
     assert _lookups(second, "hit") == dict.fromkeys(labels, 1)
     for run in ("first", "second"):
         for name in ("trials.csv", "versus.csv", "versus.md"):
@@ -60,7 +64,7 @@ def test_a_cached_judgement_is_the_fresh_one_and_a_damaged_entry_is_recomputed(
     damaged = entries[0]
     damaged.write_bytes(damaged.read_bytes()[:-40])  # truncated: the checksum no longer holds
     with pytest.warns(UserWarning, match="damaged results-cache entry"):
-        third = _judge(tmp_path / "third")
+        third = _judge(tmp_path / "third", methods=methods)
     assert sum(_lookups(third, "corrupt").values()) == 1
     assert sum(_lookups(third, "hit").values()) == len(labels) - 1
     cache = third["cache"]
@@ -69,8 +73,12 @@ def test_a_cached_judgement_is_the_fresh_one_and_a_damaged_entry_is_recomputed(
     assert (tmp_path / "third" / "trials.csv").read_bytes() == (
         tmp_path / "fresh" / "trials.csv"
     ).read_bytes()
-    fourth = _judge(tmp_path / "fourth")  # the recomputed result was stored again
-    assert _lookups(fourth, "hit") == dict.fromkeys(labels, 1)
+
+    model = Path(bare_gyro_policy.split("@")[0])
+    model.write_bytes(model.read_bytes() + b"\0")  # another model file at the same path
+    fourth = _judge(tmp_path / "fourth", methods=methods)
+    assert _lookups(fourth, "miss")["policy:gyro_ppo"] == 1  # not the old policy's result
+    assert _lookups(fourth, "hit") == {**dict.fromkeys(labels, 1), "policy:gyro_ppo": 0}
 
 
 def test_the_environment_switch_turns_the_cache_off(

@@ -129,32 +129,13 @@ def test_gyro_method_specs() -> None:
         PROBLEMS["redundant_gyros"].method_labels(["constant", "constant"])
 
 
-def _bare_gyro_policy(tmp_path: Path) -> str:
-    """An untrained PPO of the v3 gyro environment (its random weights still choose κ from
-    the observation), saved bare: ``policy:PATH@ENV_ID``."""
-    import torch
-    from stable_baselines3 import PPO
-
-    from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
-
-    env = BatchedGyroSB3Env(2, "gyro_noise_levels", observation="v3", overrides=SHORT)
-    model = PPO("MlpPolicy", env, n_steps=8, batch_size=16, seed=3, device="cpu")
-    first: Any = model.policy.mlp_extractor.policy_net[0]
-    with torch.no_grad():  # large weights: the greedy κ follows the observation
-        first.weight.mul_(30.0)
-        model.policy.action_net.weight.mul_(30.0)
-    path = tmp_path / "gyro_ppo.zip"
-    model.save(path)
-    return f"{path}@qkf/RedundantGyroCalibration-v3"
-
-
 def test_a_gyro_policy_judged_on_loaded_episodes_is_the_policy_in_its_environment(
-    tmp_path: Path,
+    bare_gyro_policy: str,
 ) -> None:
     from agents.policy import Policy
     from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
 
-    spec = _bare_gyro_policy(tmp_path)
+    spec = bare_gyro_policy
     cfg = load_gyros("gyro_noise_levels", SHORT)
     seed, n = 5_000_030, 3
     label, method = resolve_gyro_method(f"policy:{spec}")
@@ -245,9 +226,9 @@ def test_qkf_judge_gyros_writes_tables_recomputed_from_its_trials(tmp_path: Path
 
 
 def test_a_gyro_policy_saved_by_training_is_judged_and_evaluate_points_to_judge(
-    tmp_path: Path,
+    tmp_path: Path, bare_gyro_policy: str
 ) -> None:
-    bare = Path(_bare_gyro_policy(tmp_path).split("@")[0])
+    bare = Path(bare_gyro_policy.split("@")[0])
     run = tmp_path / "gyro_run"
     run.mkdir()
     bare.rename(run / "model.zip")
@@ -325,10 +306,12 @@ def test_transfer_alignment_shift_families_tune_on_the_mixture_like_the_mixed_tw
     assert not np.array_equal(own["kf-tuned"], errors["kf-tuned"])  # tuned on the shift itself
 
 
-def test_a_policy_of_another_action_set_is_refused_before_any_work(tmp_path: Path) -> None:
+def test_a_policy_of_another_action_set_is_refused_before_any_work(
+    tmp_path: Path, bare_gyro_policy: str
+) -> None:
     """The policies choose among the default 11 κ; a family whose action set has 5 is refused
     by the plan (naming the family, the model and both counts), for either problem."""
-    gyro = f"policy:{_bare_gyro_policy(tmp_path)}"
+    gyro = f"policy:{bare_gyro_policy}"
     plan_judging("redundant_gyros", ["gyro_control"], ["constant", gyro], overrides=SHORT)
     with pytest.raises(ConfigError, match=r"family gyro_control: .*gyro_ppo\.zip.*among 11 "
                        r"actions.*\(environment\.actions\) has 5"):  # fmt: skip
