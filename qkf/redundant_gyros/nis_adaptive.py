@@ -22,8 +22,9 @@ least 50 points.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -32,6 +33,8 @@ from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf_compiled import SUMS
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -114,13 +117,20 @@ def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:
 def tune_on(batch: EpisodeBatch) -> tuple[NisRule, float]:
     """:func:`tune` on episodes drawn before."""
     kappas = np.asarray(batch.cfg.environment.actions.values(), dtype=float)
-    best: tuple[NisRule, float] | None = None
-    for gamma, halflife, k0 in itertools.product(GAINS, HALF_LIVES, kappas):
-        rule = NisRule(gamma, halflife, float(k0))
-        score = float(np.mean(run_rule_on(batch, rule)))
-        if best is None or score < best[1]:
-            best = (rule, score)
-    assert best is not None
+    rules = (NisRule(g, h, float(k0)) for g, h, k0 in itertools.product(GAINS, HALF_LIVES, kappas))
+    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
+
+
+def grid_minimum(points: Iterable[T], score: Callable[[T], float]) -> tuple[T, float]:
+    """The point of ``points`` with the lowest ``score`` (the first on ties), and that score:
+    the tuning of the grid-tuned gyro rules."""
+    best: tuple[T, float] | None = None
+    for point in points:
+        value = score(point)
+        if best is None or value < best[1]:
+            best = (point, value)
+    if best is None:
+        raise ValueError("an empty tuning grid")
     return best
 
 
@@ -129,6 +139,7 @@ __all__ = [
     "HALF_LIVES",
     "EpisodeBatch",
     "NisRule",
+    "grid_minimum",
     "run_rule",
     "run_rule_on",
     "tune",

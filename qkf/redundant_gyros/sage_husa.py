@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
+from qkf.redundant_gyros.nis_adaptive import EpisodeBatch, grid_minimum
 
 FORGETTING = (0.5, 0.8, 0.9, 0.95, 0.98, 1.0)
 """The tuning grid's forgetting factors ``β`` (1: the constant ``κ_0``)."""
@@ -113,14 +113,9 @@ def tune_on(batch: EpisodeBatch) -> tuple[SageHusaRule, float]:
     the lowest mean ``J`` over the episodes of ``batch``, and that mean (the first such point
     on ties: ``β = 1`` gives one result whatever the warm-up)."""
     kappas = np.asarray(batch.cfg.environment.actions.values(), dtype=float)
-    best: tuple[SageHusaRule, float] | None = None
-    for beta, k0, warm in itertools.product(FORGETTING, kappas, WARM_UPS):
-        rule = SageHusaRule(float(beta), float(k0), int(warm))
-        score = float(np.mean(run_rule_on(batch, rule)))
-        if best is None or score < best[1]:
-            best = (rule, score)
-    assert best is not None
-    return best
+    grid = itertools.product(FORGETTING, kappas, WARM_UPS)
+    rules = (SageHusaRule(float(beta), float(k0), int(warm)) for beta, k0, warm in grid)
+    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
 
 
 __all__ = [
