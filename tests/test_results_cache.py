@@ -94,6 +94,7 @@ def test_a_damaged_entry_is_reported_and_recomputed(cache_dir: Path) -> None:
     with pytest.warns(CacheWarning, match="checksum"):
         again = _bench("kf")
     assert again.cache["kf"] == {"hit": 1, "miss": 0, "corrupt": 1, "off": 0}
+    assert len(again.cache_problems) == 1 and str(entries[0]) in again.cache_problems[0]
     assert _tables(again)["trials.csv"] == _tables(first)["trials.csv"]
     # rewritten whole: the next run is all hits, without a warning
     with warnings.catch_warnings():

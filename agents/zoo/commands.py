@@ -263,10 +263,12 @@ def evaluate_case(
     progress: bool,
     cache: bool = False,
     baselines: list[str] | None = None,
+    prepared: object | None = None,
 ) -> Path:
-    """One judging benchmark (:func:`prepare_case`); returns its bench folder (in the work
-    folder)."""
-    prepared = prepare_case(entry, case, trials, baselines)
+    """One judging benchmark (``prepared`` by :func:`prepare_case`, or prepared here); returns
+    its bench folder (in the work folder)."""
+    if prepared is None:
+        prepared = prepare_case(entry, case, trials, baselines)
     folder = work / f"judge_{Path(case.scenario).stem}_seed{case.seed}"
     entry_bench(entry).run(prepared, case.seed, folder, progress=progress, cache=cache)
     return folder
@@ -383,9 +385,10 @@ def evaluate_entry(
     if not entry.trained_seeds():
         raise FileNotFoundError(f"{entry.folder}: no trained seed (run qkf zoo train first)")
     check_entry(entry)
+    prepared = []
     for case in entry.spec.cases():
-        try:  # refused before any work
-            prepare_case(entry, case, trials, baselines)
+        try:  # refused before any work; run as prepared
+            prepared.append(prepare_case(entry, case, trials, baselines))
         except ValueError as exc:  # a method spec that does not resolve
             raise ConfigError(f"{entry.folder / 'zoo.yaml'}: {case.scenario}: {exc}") from None
     fam = entry.spec.families
@@ -402,9 +405,9 @@ def evaluate_entry(
     _clear(dst)
     if entry.spec.cases():
         rows = []
-        for case in entry.spec.cases():
+        for case, ready in zip(entry.spec.cases(), prepared, strict=True):
             say(f"judging on {case.scenario}, benchmark seed {case.seed}")
-            folder = evaluate_case(entry, case, work, trials, progress, cache, baselines)
+            folder = evaluate_case(entry, case, work, trials, progress, cache, baselines, ready)
             stem = f"{Path(case.scenario).stem}_seed{case.seed}"
             _copy(folder / "trials.csv", dst / f"{stem}_trials.csv")
             _copy(folder / "summary.md", dst / f"{stem}_summary.md")

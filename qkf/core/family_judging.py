@@ -152,12 +152,12 @@ def run_judging(
     before each family. ``cache``: use the results cache (unless ``$QKF_NO_CACHE``), each
     family's lookups logged into ``cache[family]`` (None: compute everything)."""
     out = {}
-    use_cache = cache is not None and cache_enabled()
+    logs = cache if cache_enabled() else None
     runs = zip(plan.families, plan.configs, plan.tuning_configs, strict=True)
     for i, (fam, cfg, tuning_cfg) in enumerate(runs, start=1):
         if on_family is not None:
             on_family(i, len(plan.families), fam)
-        log = cache.setdefault(fam, CacheLog()) if cache is not None and use_cache else None
+        log = None if logs is None else logs.setdefault(fam, CacheLog())
         out[fam] = plan.problem.trial_errors(
             cfg, plan.specs, plan.trials, plan.seed, progress, tuning_cfg=tuning_cfg, cache=log
         )

@@ -79,6 +79,13 @@ class EpisodeBatch:
             ukf.load(row, e.inputs)
         return cls(cfg, ukf, np.array([e.settled_from for e in eps]))
 
+    def criterion(self, total: np.ndarray) -> np.ndarray:
+        """``J`` per episode (n,) from ``total`` (n,), the sum over the episodes of
+        :meth:`BatchedUKF.settled_square`: its mean over the judged epochs and the four states;
+        ``inf`` where the filter failed."""
+        j = total / ((self.ukf.n_steps - self.settled) * 4.0)
+        return np.where(self.ukf.failed, np.inf, j)
+
 
 def run_rule(cfg: GyrosConfig, seeds: Sequence[int], rule: NisRule) -> np.ndarray:
     """``J`` per episode (len(seeds),) of the rule on the episodes of environment seeds
@@ -104,8 +111,7 @@ def run_rule_on(b: EpisodeBatch, rule: NisRule) -> np.ndarray:
             log_nis = np.log(ukf.sums[:, nis] / steps)
         m = (1.0 - a) * m + a * np.where(np.isfinite(log_nis), log_nis, 0.0)
         kappa = np.clip(kappa * np.exp(rule.gamma * m), lo, hi)
-    j = total / ((ukf.n_steps - b.settled) * 4.0)
-    return np.where(ukf.failed, np.inf, j)
+    return b.criterion(total)
 
 
 def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:

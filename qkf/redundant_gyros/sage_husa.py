@@ -87,7 +87,7 @@ def run_rule_on(b: EpisodeBatch, rule: SageHusaRule) -> np.ndarray:
     ukf.restart(np.arange(ukf.n))
     kappas = np.asarray(b.cfg.environment.actions.values(), dtype=float)
     lo, hi = float(kappas.min()), float(kappas.max())
-    q2 = ukf.compiled.geometry[6]
+    q2 = ukf.setup.q_sd**2  # the nominal process noise per second (κ = 1)
     dt = ukf.sampler.dt
     kappa = np.full(ukf.n, rule.kappa0)
     total = np.zeros(ukf.n)
@@ -104,8 +104,7 @@ def run_rule_on(b: EpisodeBatch, rule: SageHusaRule) -> np.ndarray:
         held = np.clip(np.where(np.isfinite(estimate), estimate, kappa), lo, hi)
         d = 0.0 if rule.beta >= 1.0 else (1.0 - rule.beta) / (1.0 - rule.beta ** (s + 1))
         kappa = np.clip((1.0 - d) * kappa + d * held, lo, hi)
-    j = total / ((ukf.n_steps - b.settled) * 4.0)
-    return np.where(ukf.failed, np.inf, j)
+    return b.criterion(total)
 
 
 def tune_on(batch: EpisodeBatch) -> tuple[SageHusaRule, float]:

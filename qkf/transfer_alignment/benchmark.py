@@ -114,6 +114,7 @@ class BenchResult:
     weights: np.ndarray | None = None
     # results cache, per method: chunks that were a hit, a miss, a damaged entry, or not cached
     cache: dict[str, dict[str, int]] = field(default_factory=dict)
+    cache_problems: list[str] = field(default_factory=list)  # the damaged entries (recomputed)
 
 
 def kappa_sampling(cfg: Config) -> int:
@@ -474,17 +475,18 @@ def run_benchmark(
             )
         )
         cache_counts = {m: dict.fromkeys(("hit", "miss", "corrupt", "off"), 0) for m in labels}
+        damaged: list[str] = []
         for m, status in prepare_cache.items():  # the preparation counts as one lookup
             if status != "off":
                 cache_counts[m][f"prepare_{status}"] = 1
             if status == "corrupt":
-                warnings.warn(f"damaged results-cache entry of {m}'s preparation, recomputed",
-                              CacheWarning, stacklevel=2)  # fmt: skip
+                damaged.append(f"damaged results-cache entry of {m}'s preparation, recomputed")
+                warnings.warn(damaged[-1], CacheWarning, stacklevel=2)
         done = 0
         for res in run_chunks(task, chunks, backend, workers, cfg.run.ray_address):
             for problem in res.cache_problems:
-                warnings.warn(f"damaged results-cache entry, recomputed: {problem}", CacheWarning,
-                              stacklevel=2)  # fmt: skip
+                damaged.append(f"damaged results-cache entry, recomputed: {problem}")
+                warnings.warn(damaged[-1], CacheWarning, stacklevel=2)
             for m in labels:
                 cache_counts[m][res.cache[m]] += 1
                 acc[m].add_sums(res.sum_sq[m], res.count, res.diverged[m])
@@ -567,6 +569,7 @@ def run_benchmark(
         nees_t=nees_t,
         weights=weights,
         cache=cache_counts,
+        cache_problems=damaged,
     )
 
 

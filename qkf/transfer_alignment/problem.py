@@ -7,7 +7,6 @@ workload check are imported on first use, so that reading the problem stays chea
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,7 @@ import numpy as np
 
 from qkf.core.problem import Families, JudgedMetric, SeedRanges
 from qkf.core.registry import Registry
-from qkf.core.results_cache import CacheLog, CacheWarning
+from qkf.core.results_cache import CacheLog
 from qkf.transfer_alignment.adaptive import MAX_TRIALS, TUNING_SEEDS
 from qkf.transfer_alignment.problem_studies import BENCH, FAMILIES_STUDY_RUNNER
 
@@ -156,16 +155,9 @@ class TransferAlignment:
                 for m in named
             ]
 
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", CacheWarning)
-            res = run_benchmark(
-                cfg, named, trials, seed, progress=progress, cache=cache is not None
-            )
-        for w in caught:  # the damaged entries into the log, every warning on to the caller
-            if cache is not None and issubclass(w.category, CacheWarning):
-                cache.problems.append(str(w.message))
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        res = run_benchmark(cfg, named, trials, seed, progress=progress, cache=cache is not None)
         if cache is not None:  # per method: chunks found, computed, damaged; its tuning's
+            cache.problems.extend(res.cache_problems)
             for label, counts in res.cache.items():
                 for status, times in counts.items():
                     cache.add(label, status, times)

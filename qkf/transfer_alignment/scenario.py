@@ -28,7 +28,7 @@ import numpy as np
 
 from qkf.core import units
 from qkf.core.quat import compose_rotvecs, cumulative_rotation
-from qkf.core.time_grid import epochs_in
+from qkf.core.time_grid import epochs_in, outside_windows
 from qkf.transfer_alignment.config import (
     CalibrationJump,
     Config,
@@ -112,10 +112,7 @@ def true_rates(sc: Scenario) -> np.ndarray:
 def measurement_mask(sc: Scenario) -> np.ndarray:
     """``True`` at epochs with an ADS measurement (outside every gap window)."""
     t = np.arange(n_epochs(sc)) * sc.dt_s
-    mask = np.ones(t.size, dtype=bool)
-    for g in sc.ads.gaps:
-        mask[epochs_in(t, g.start_s, g.end_s)] = False
-    return mask
+    return outside_windows(t, [(g.start_s, g.end_s) for g in sc.ads.gaps])
 
 
 def calibration_walk_sigma(sc: Scenario) -> np.ndarray:
