@@ -19,7 +19,7 @@ from envs import ENVIRONMENTS
 from qkf.cli import app
 from qkf.core.config import ConfigError
 from qkf.core.family_judging import plan_judging, versus_markdown
-from qkf.core.problem import PROBLEMS, Problem, problem_of_env
+from qkf.core.problem import PROBLEMS, Problem, TrialRequest, problem_of_env
 from qkf.core.stats import resample_counts
 from qkf.core.versus import paired_verdict, versus_rows
 from qkf.redundant_gyros import hindsight as hs
@@ -276,7 +276,7 @@ def test_on_a_shift_family_the_tuned_methods_tune_on_the_family_it_shifts_from()
     prob = plan.problem
     shift = plan.configs[1]
     source = plan.tuning_configs[1]
-    got = prob.trial_errors(shift, ["constant"], 2, 5_000_000, tuning_cfg=source)["constant"]
+    got = prob.trial_errors(shift, TrialRequest(("constant",), 2, 5_000_000, source))["constant"]
     episodes = prob.simulate(shift, 5_000_000, range(2))
     tuned = {
         id(cfg): np.sqrt(GYRO_METHODS["constant"](shift, episodes, prob.tuning(cfg)))
@@ -297,11 +297,10 @@ def test_transfer_alignment_shift_families_tune_on_the_mixture_like_the_mixed_tw
     assert plan.tuning_configs[0] == PROBLEMS["transfer_alignment"].load_config(
         "mixed_random", short
     )
-    errors = plan.problem.trial_errors(
-        plan.configs[0], plan.specs, 2, plan.seed, tuning_cfg=plan.tuning_configs[0]
-    )
+    request = TrialRequest(tuple(plan.specs), 2, plan.seed, plan.tuning_configs[0])
+    errors = plan.problem.trial_errors(plan.configs[0], request)
     np.testing.assert_array_equal(errors["kf-tuned"], errors["kf-tuned-mixed"])
-    own = plan.problem.trial_errors(plan.configs[0], ["kf", "kf-tuned"], 2, plan.seed)
+    own = plan.problem.trial_errors(plan.configs[0], TrialRequest(("kf", "kf-tuned"), 2, plan.seed))
     np.testing.assert_array_equal(own["kf"], errors["kf"])
     assert not np.array_equal(own["kf-tuned"], errors["kf-tuned"])  # tuned on the shift itself
 

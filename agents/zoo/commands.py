@@ -44,7 +44,7 @@ from qkf.core.config import ConfigError, read_yaml_mapping
 from qkf.core.family_judging import RUN_KIND, JudgePlan
 from qkf.core.io import OutputError, atomic_write_bytes, check_output_dir
 from qkf.core.method_specs import pick_baselines
-from qkf.core.studies import Bench, FamiliesStudy, StudyRun
+from qkf.core.studies import Bench, FamiliesStudy, StudyEvents, StudyRun
 
 PROMOTED = ("config.yaml", "card.md", "SOURCE")
 """What ``promote`` writes into ``best/`` besides the model."""
@@ -300,7 +300,7 @@ def evaluate_families(
         if reused:
             say(f"{family}: finished earlier, kept")
 
-    study.run(run, out, progress, on_start, on_case, cache)
+    study.run(run, out, StudyEvents(progress, on_start, on_case), cache)
     return out
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from qkf.core.config import ConfigError
 from qkf.core.io import atomic_write_csv, atomic_write_text, staged_directory
 from qkf.core.manifest import manifest, write_manifest
-from qkf.core.problem import PROBLEMS, Problem
+from qkf.core.problem import PROBLEMS, Problem, TrialRequest
 from qkf.core.registry import RegistryError
 from qkf.core.results_cache import CacheLog, cache_enabled
 from qkf.core.versus import VersusRow, versus_rows
@@ -158,9 +158,8 @@ def run_judging(
         if on_family is not None:
             on_family(i, len(plan.families), fam)
         log = None if logs is None else logs.setdefault(fam, CacheLog())
-        out[fam] = plan.problem.trial_errors(
-            cfg, plan.specs, plan.trials, plan.seed, progress, tuning_cfg=tuning_cfg, cache=log
-        )
+        request = TrialRequest(tuple(plan.specs), plan.trials, plan.seed, tuning_cfg, progress, log)
+        out[fam] = plan.problem.trial_errors(cfg, request)
     return out
 
 

@@ -23,13 +23,14 @@ A problem has:
   refusal (``ConfigError``) of a run too large for memory, before any work;
 - ``check_methods(cfg, specs)``: the refusal of a method that cannot run on a family's config
   (a method object may offer ``check(cfg)``; ``policy:PATH`` does), before any work;
-- ``method_labels(specs)`` and ``trial_errors(cfg, specs, trials, seed, tuning_cfg=, cache=)``:
-  method specs (``NAME``, ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same
-  trials, each giving the judged metric per trial: what :mod:`qkf.core.family_judging`
-  compares. The tuned methods tune on ``tuning_cfg``'s tuning trials: on a shift family, those
-  of :attr:`Families.shift_tuned_on`. With a ``cache`` log, results are read from and stored
-  in the results cache (:mod:`qkf.core.results_cache`; a stored result is the fresh one, byte
-  for byte) and each lookup is counted in the log;
+- ``method_labels(specs)`` and ``trial_errors(cfg, request)``: method specs (``NAME``,
+  ``LABEL=NAME``, ``policy:PATH``, …) checked, then run on the same trials (a
+  :class:`TrialRequest`), each giving the judged metric per trial: what
+  :mod:`qkf.core.family_judging` compares. The tuned methods tune on the request's
+  ``tuning_cfg``'s tuning trials: on a shift family, those of :attr:`Families.shift_tuned_on`.
+  With a ``cache`` log, results are read from and stored in the results cache
+  (:mod:`qkf.core.results_cache`; a stored result is the fresh one, byte for byte) and each
+  lookup is counted in the log;
 - ``bench`` and ``families_study``: its benchmark with ``qkf bench``'s files and its families
   study (:mod:`qkf.core.studies`), or ``None`` where it has none.
 
@@ -107,6 +108,22 @@ class SeedRanges:
         return low <= seed and last < high
 
 
+@dataclass(frozen=True)
+class TrialRequest:
+    """What :meth:`Problem.trial_errors` runs: every method of ``specs`` on the trials
+    ``0 … trials − 1`` of benchmark seed ``seed`` (the same data: paired)."""
+
+    specs: tuple[str, ...]  # method specs: NAME, LABEL=NAME, policy:PATH, …
+    trials: int
+    seed: int  # benchmark seed
+    tuning_cfg: Any = None
+    """The config whose tuning trials the tuned methods tune on (None: the judged config's;
+    see :attr:`Families.shift_tuned_on`)."""
+    progress: bool = False  # a progress bar over the methods or trial chunks
+    cache: CacheLog | None = None
+    """Use the results cache and count each lookup here (None: compute everything)."""
+
+
 @runtime_checkable
 class Problem(Protocol):
     """An estimation problem, as the experiments layer uses it (see the module docstring)."""
@@ -148,21 +165,9 @@ class Problem(Protocol):
         set), before any work: each resolved method's ``check(cfg)``, where it has one."""
         ...
 
-    def trial_errors(
-        self,
-        cfg: Any,
-        specs: Sequence[str],
-        trials: int,
-        seed: int,
-        progress: bool = False,
-        tuning_cfg: Any = None,
-        cache: CacheLog | None = None,
-    ) -> dict[str, np.ndarray]:
-        """Label → the judged metric per trial (trials,), every method on the trials
-        ``0 … trials − 1`` of benchmark seed ``seed`` (the same data: paired); the tuned
-        methods tune on ``tuning_cfg``'s tuning trials (None: ``cfg``'s; see
-        :attr:`Families.shift_tuned_on`). ``cache``: use the results cache and count its
-        lookups there (None: compute everything)."""
+    def trial_errors(self, cfg: Any, request: TrialRequest) -> dict[str, np.ndarray]:
+        """Label → the judged metric per trial (trials,) of each method of ``request`` on
+        ``cfg``'s trials."""
         ...
 
 

@@ -44,6 +44,17 @@ def load_object(spec: str) -> Any:
     return obj
 
 
+class Imported:
+    """A class attribute imported when it is read: ``methods = Imported("pkg.module:NAME")``,
+    so that the object holding it loads without the module (a problem's facts sheet)."""
+
+    def __init__(self, spec: str) -> None:
+        self.spec = spec
+
+    def __get__(self, obj: object, owner: type | None = None) -> Any:
+        return load_object(self.spec)
+
+
 class Registry(Generic[T]):
     """Names → objects, with entry-point discovery (see the module docstring).
 

@@ -63,6 +63,15 @@ class StudyRun:
 
 
 @dataclass(frozen=True)
+class StudyEvents:
+    """What a running families study reports."""
+
+    progress: bool = False  # progress bars
+    on_start: Callable[[int, int, str], None] | None = None  # (i, n, family) before each family
+    on_case: Callable[[str, bool], None] | None = None  # (family, reused) after each family
+
+
+@dataclass(frozen=True)
 class StudyResults:
     """What a finished families study says, per family: the judged error per trial of each
     method (label → (trials,)), and the reference the scores are normalised by."""
@@ -98,18 +107,11 @@ class FamiliesStudy(Protocol):
         ...
 
     def run(
-        self,
-        run: StudyRun,
-        out: Path,
-        progress: bool = False,
-        on_start: Callable[[int, int, str], None] | None = None,
-        on_case: Callable[[str, bool], None] | None = None,
-        cache: bool = False,
+        self, run: StudyRun, out: Path, events: StudyEvents | None = None, cache: bool = False
     ) -> None:
         """Run the study into ``out`` (the judged families and the shift group), resuming a
-        family finished there earlier with the same inputs. ``on_start(i, n, family)`` before
-        each family; ``on_case(family, reused)`` after it. Writes ``families.md``,
-        ``families.csv`` and each family's ``trials.csv`` in its case folder
+        family finished there earlier with the same inputs, reporting to ``events``. Writes
+        ``families.md``, ``families.csv`` and each family's ``trials.csv`` in its case folder
         (:func:`qkf.core.campaign.case_folder`)."""
         ...
 

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from qkf.core.config import ConfigError
-from qkf.core.problem import Families, JudgedMetric, SeedRanges
-from qkf.core.registry import Registry
+from qkf.core.problem import Families, JudgedMetric, SeedRanges, TrialRequest
+from qkf.core.registry import Imported
 from qkf.core.results_cache import CacheLog
 from qkf.redundant_gyros.config import MAX_CHUNK_TRIAL_EPOCHS, MAX_TRIALS, epochs_of
 
@@ -72,12 +72,7 @@ class RedundantGyros:
     bench = None  # its benches are qkf gyros bench's; a zoo entry is judged by qkf judge
     families_study = None
 
-    @property
-    def methods(self) -> Registry[Any]:
-        """:data:`qkf.redundant_gyros.methods.GYRO_METHODS`."""
-        from qkf.redundant_gyros.methods import GYRO_METHODS
-
-        return GYRO_METHODS
+    methods = Imported("qkf.redundant_gyros.methods:GYRO_METHODS")
 
     def load_config(self, source: str | Path | None, overrides: Sequence[str] = ()) -> Any:
         """:func:`qkf.redundant_gyros.load_config`."""
@@ -125,30 +120,23 @@ class RedundantGyros:
             if callable(check):
                 check(cfg)
 
-    def trial_errors(
-        self,
-        cfg: Any,
-        specs: Sequence[str],
-        trials: int,
-        seed: int,
-        progress: bool = False,
-        tuning_cfg: Any = None,
-        cache: CacheLog | None = None,
-    ) -> dict[str, np.ndarray]:
+    def trial_errors(self, cfg: Any, request: TrialRequest) -> dict[str, np.ndarray]:
         """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
-        ones tuned on :meth:`tuning`'s episodes of ``tuning_cfg`` (None: ``cfg``). ``cache``:
+        ones tuned on :meth:`tuning`'s episodes of ``request.tuning_cfg`` (None: ``cfg``).
+        ``request.cache``:
         each method's ``J`` per episode is read from the results cache when stored under
         :func:`results_key` and stored there when computed (a method that cannot be described:
         ``off``); the episodes are simulated only if some method is computed."""
         from qkf.core.montecarlo import progress_bar
         from qkf.core.results_cache import Entry, ResultsCache
 
-        methods = _resolved(specs)
+        methods = _resolved(request.specs)
+        seed, trials, cache = request.seed, request.trials, request.cache
         store = ResultsCache() if cache is not None else None
-        tuning_of = cfg if tuning_cfg is None else tuning_cfg
+        tuning_of = cfg if request.tuning_cfg is None else request.tuning_cfg
         data: tuple[Any, Any] | None = None
         out = {}
-        with progress_bar(len(methods), "gyro methods", progress, unit="methods") as bar:
+        with progress_bar(len(methods), "gyro methods", request.progress, unit="methods") as bar:
             for label, method in methods:
                 bar.note(label)
                 key = None if store is None else results_key(cfg, tuning_of, method, seed, trials)

@@ -13,9 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from qkf.core.problem import Families, JudgedMetric, SeedRanges
-from qkf.core.registry import Registry
-from qkf.core.results_cache import CacheLog
+from qkf.core.problem import Families, JudgedMetric, SeedRanges, TrialRequest
+from qkf.core.registry import Imported
 from qkf.transfer_alignment.adaptive import MAX_TRIALS, TUNING_SEEDS
 from qkf.transfer_alignment.problem_studies import BENCH, FAMILIES_STUDY_RUNNER
 
@@ -82,12 +81,7 @@ class TransferAlignment:
     bench = BENCH  # qkf bench: qkf evaluate, a zoo entry's judge: cases
     families_study = FAMILIES_STUDY_RUNNER  # qkf study families: a zoo entry's families:
 
-    @property
-    def methods(self) -> Registry[Any]:
-        """``qkf.transfer_alignment.methods.METHODS``."""
-        from qkf.transfer_alignment.methods import METHODS
-
-        return METHODS
+    methods = Imported("qkf.transfer_alignment.methods:METHODS")
 
     def load_config(self, source: str | Path | None, overrides: Sequence[str] = ()) -> Any:
         """:func:`qkf.transfer_alignment.config.load_config`."""
@@ -121,16 +115,7 @@ class TransferAlignment:
 
         resolve_method_settings(cfg, parse_methods(list(specs)))
 
-    def trial_errors(
-        self,
-        cfg: Any,
-        specs: Sequence[str],
-        trials: int,
-        seed: int,
-        progress: bool = False,
-        tuning_cfg: Any = None,
-        cache: CacheLog | None = None,
-    ) -> dict[str, np.ndarray]:
+    def trial_errors(self, cfg: Any, request: TrialRequest) -> dict[str, np.ndarray]:
         """``state_settled`` per trial of each method of a
         :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. With ``tuning_cfg`` (a
         shift family: the training mixture, ``Families.shift_tuned_on``) every method that tunes
@@ -143,7 +128,8 @@ class TransferAlignment:
         from qkf.transfer_alignment.methods.on_mixture import TunedOnMixture, TunedOnScenario
         from qkf.transfer_alignment.metrics import METRIC_COLUMNS
 
-        named = parse_methods(list(specs))
+        named = parse_methods(list(request.specs))
+        tuning_cfg, cache = request.tuning_cfg, request.cache
         if tuning_cfg is not None:
             named = [
                 NamedMethod(
@@ -155,7 +141,9 @@ class TransferAlignment:
                 for m in named
             ]
 
-        res = run_benchmark(cfg, named, trials, seed, progress=progress, cache=cache is not None)
+        res = run_benchmark(
+            cfg, named, request.trials, request.seed, request.progress, cache=cache is not None
+        )
         if cache is not None:  # per method: chunks found, computed, damaged; its tuning's
             cache.problems.extend(res.cache_problems)
             for label, counts in res.cache.items():

@@ -6,13 +6,13 @@ and a zoo entry's ``judge:`` and ``families:`` sections, through ``PROBLEMS[...]
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from qkf.core.config import ConfigError
-from qkf.core.studies import StudyResults, StudyRun
+from qkf.core.studies import StudyEvents, StudyResults, StudyRun
 
 if TYPE_CHECKING:
     from qkf.transfer_alignment.config import Config
@@ -124,29 +124,25 @@ class TransferAlignmentFamiliesStudy:
         prepare_output(out, resume=True, overwrite=False)
 
     def run(
-        self,
-        run: StudyRun,
-        out: Path,
-        progress: bool = False,
-        on_start: Callable[[int, int, str], None] | None = None,
-        on_case: Callable[[str, bool], None] | None = None,
-        cache: bool = False,
+        self, run: StudyRun, out: Path, events: StudyEvents | None = None, cache: bool = False
     ) -> None:
         """:func:`~.campaigns.run_study` of the ``families`` preset with the shift group,
         resuming."""
         from qkf.transfer_alignment.campaigns import run_study
         from qkf.transfer_alignment.cases import CaseRun
 
+        said = events or StudyEvents()
+
         def started(i: int, n: int, case: CaseRun) -> None:
-            if on_start is not None:
-                on_start(i, n, case.label)
+            if said.on_start is not None:
+                said.on_start(i, n, case.label)
 
         def finished(case: CaseRun, folder: Path, reused: bool) -> None:
-            if on_case is not None:
-                on_case(case.label, reused)
+            if said.on_case is not None:
+                said.on_case(case.label, reused)
 
         run_study(
-            FAMILIES_STUDY, out, progress, resume=True, overwrite=False, on_case=finished,
+            FAMILIES_STUDY, out, said.progress, resume=True, overwrite=False, on_case=finished,
             trials=run.trials, sets=list(run.sets), on_start=started,
             families=list(run.families), extra_methods=list(run.policies), seed=run.seed,
             base_methods=list(run.baselines), cache=cache, shift=True,

@@ -271,6 +271,12 @@ def action_values(cfg: Config) -> np.ndarray:
     return np.asarray(cfg.adaptive.actions.values())
 
 
+def kappa_range(cfg: Config) -> tuple[float, float]:
+    """The smallest and largest κ of the action set: where the adaptive rules clip their κ."""
+    kappas = action_values(cfg)
+    return float(kappas.min()), float(kappas.max())
+
+
 def decision_steps(period_s: float, dt_s: float) -> int:
     """Filter epochs per decision period (at least one)."""
     return max(1, round(period_s / dt_s))

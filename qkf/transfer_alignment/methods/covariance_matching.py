@@ -49,7 +49,7 @@ from qkf.transfer_alignment.adaptive import CovarianceMatchingConfig
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
-    action_values,
+    kappa_range,
     new_filter,
     uses_settings,
 )
@@ -110,8 +110,7 @@ def run_covariance_matching(cfg: Config, data: ScenarioData) -> MethodOutput:
     cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params
     b, n = data.n_trials, data.n_epochs
-    kappas = action_values(cfg)
-    k_min, k_max = float(kappas.min()), float(kappas.max())
+    k_min, k_max = kappa_range(cfg)
     q_step = prm.qp0 * prm.dt  # q_p0 Δt
     r_min = (st.r_floor * prm.sigma_a) ** 2
     has_meas = np.broadcast_to(np.asarray(data.has_meas, dtype=bool), (b, n))

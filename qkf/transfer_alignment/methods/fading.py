@@ -68,7 +68,7 @@ from qkf.transfer_alignment.adaptive import FadingConfig
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
-    action_values,
+    kappa_range,
     new_filter,
     uses_settings,
 )
@@ -168,7 +168,6 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingConfig) -> MethodO
     cov = CovarianceRecorder(cfg, data.n_trials)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
-    kappas = action_values(cfg)
     est = np.empty((b, n, 16))
     lam_log = np.ones((b, n))
     kappa_eq = np.ones((b, n))
@@ -208,7 +207,7 @@ def fading_filter(cfg: Config, data: ScenarioData, prm: FadingConfig) -> MethodO
         php = phi @ np.where(ok[:, None, None], p_post, 0.0) @ np.swapaxes(phi, -1, -2)
         php = 0.5 * (php + np.swapaxes(php, -1, -2))  # Φ P⁺ Φᵀ, symmetric
         var_post = np.where(ok[:, None], rec.var[:, 0, CALIB], 0.0)
-    lo, hi = float(kappas.min()), float(kappas.max())
+    lo, hi = kappa_range(cfg)
     kappa = np.clip(np.where(np.isfinite(kappa_eq), kappa_eq, 1.0), lo, hi)
     notes = {
         "fading": (

@@ -33,7 +33,7 @@ from qkf.transfer_alignment.adaptive import SageHusaConfig
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
-    action_values,
+    kappa_range,
     new_filter,
     uses_settings,
 )
@@ -84,8 +84,8 @@ def run_sage_husa(cfg: Config, data: ScenarioData) -> MethodOutput:
     cov = CovarianceRecorder(cfg, data.n_trials)
     b, n = data.n_trials, data.n_epochs
     dt, qp0 = cfg.scenario.dt_s, cfg.filter.qp0
-    kappas = action_values(cfg)
-    q_min, q_max = kappas.min() * qp0 * dt, kappas.max() * qp0 * dt
+    k_min, k_max = kappa_range(cfg)
+    q_min, q_max = k_min * qp0 * dt, k_max * qp0 * dt
     d = forgetting_weights(cfg.adaptive.sage_husa.forgetting, n)
     q_hat = np.full((b, 9), qp0 * dt)
     var_prev = np.broadcast_to(kf.P[:, np.arange(6, 15), np.arange(6, 15)], (b, 9)).copy()

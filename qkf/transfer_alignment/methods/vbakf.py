@@ -96,7 +96,7 @@ from qkf.transfer_alignment.adaptive import VbakfConfig
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import (
     MethodOutput,
-    action_values,
+    kappa_range,
     new_filter,
     uses_settings,
 )
@@ -142,8 +142,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
     cov = CovarianceRecorder(cfg, data.n_trials)
     prm = kf.params
     b, n = data.n_trials, data.n_epochs
-    kappas = action_values(cfg)
-    k_min, k_max = float(kappas.min()), float(kappas.max())
+    k_min, k_max = kappa_range(cfg)
     d = prm.p0_sigma
     dd = np.outer(d, d)
     q_step = prm.qp0 * prm.dt / d[model.CALIB] ** 2  # q_p0 Δt in scaled units, per calibration term
