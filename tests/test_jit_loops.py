@@ -7,7 +7,7 @@ import numba as nb
 import numpy as np
 import pytest
 
-from qkf.core.jit import kernel_jit, parallel_and_serial, row_loops
+from qkf.core.jit import kernel_array, kernel_jit, parallel_and_serial, row_loops
 
 
 @kernel_jit(nrt=True, cache=False)
@@ -78,3 +78,50 @@ def test_both_loops_and_a_direct_call_share_one_compilation_of_the_row() -> None
     loops.row(0, x)
     np.testing.assert_array_equal(x, [8.0, 4.0, 4.0])
     assert [str(sig[0]) for sig in double.signatures] == ["int64"]  # type: ignore[attr-defined]
+
+
+def test_kernel_array_hands_the_kernels_one_array_type() -> None:
+    """Writable and C-contiguous whatever it is given (copied only when it is not already), so
+    that a compiled routine is not compiled again for a read-only or strided view."""
+    one_trial = kernel_array(np.array([True, False, True]), bool, (1, 3))
+    assert one_trial.flags.writeable and one_trial.flags.c_contiguous  # a (1, n) broadcast is
+    np.testing.assert_array_equal(one_trial, [[True, False, True]])  # contiguous, read-only
+    view = np.broadcast_to(np.eye(2, 3, dtype=bool), (2, 3))
+    assert not view.flags.writeable
+    got = kernel_array(view, bool, (2, 3))
+    assert got.flags.writeable and got is not view
+    np.testing.assert_array_equal(got, view)
+    strided = kernel_array(np.arange(12.0).reshape(2, 6)[:, ::2], float, (2, 3))
+    assert strided.flags.c_contiguous
+    np.testing.assert_array_equal(strided, [[0.0, 2.0, 4.0], [6.0, 8.0, 10.0]])
+    fine = np.ones((2, 3), dtype=bool)
+    assert kernel_array(fine, bool, (2, 3)) is fine  # nothing to copy
+
+
+def test_the_filter_kernel_gets_a_writable_mask_from_every_caller(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """One trial (the single environment: an (n,) mask broadcast to (1, n) is read-only, yet
+    contiguous), a read-only (B, n) mask and a writable one reach the kernel as the same array
+    type; before, the first two compiled the kernel a second time (13 s of LLVM each)."""
+    from qkf.transfer_alignment import kernel
+    from qkf.transfer_alignment.config import load_config
+    from qkf.transfer_alignment.filter import FilterParams, TransferAlignmentKF
+
+    seen: list[np.ndarray] = []
+    monkeypatch.setattr(kernel, "run_block", lambda st, inp, c, rec: seen.append(inp.has_meas))
+    monkeypatch.setattr(kernel, "run_block_serial", lambda st, inp, c, rec: seen.append(inp[3]))
+    params = FilterParams.from_config(load_config("paper"))
+    n = 3
+    for b, mask in (
+        (1, np.array([True, False, True])),
+        (kernel.SERIAL_BELOW, np.broadcast_to(np.array([True, False, True]), (4, n))),
+        (kernel.SERIAL_BELOW, np.ones((4, n), dtype=bool)),
+    ):
+        kf = TransferAlignmentKF(params, b)
+        kf.step(np.zeros((b, n, 3)), np.zeros((b, n, 4)), np.zeros((b, n, 3)), mask)
+    assert [(m.shape, m.flags.writeable, m.flags.c_contiguous) for m in seen] == [
+        ((1, n), True, True),
+        ((4, n), True, True),
+        ((4, n), True, True),
+    ]

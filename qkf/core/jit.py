@@ -264,3 +264,19 @@ def row_loops(
     loop.__doc__ = f"{py_func.__qualname__} for every row of a batch ({rows} rows)."
     parallel, serial = parallel_and_serial(loop, fastmath=fastmath, cache=cache)
     return RowLoops(parallel, serial, row)
+
+
+def kernel_array(arr: Any, dtype: type, shape: tuple[int, ...]) -> np.ndarray:
+    """``arr`` broadcast to ``shape`` as a writable C-contiguous array of ``dtype``: copied
+    unless it is one already.
+
+    A compiled routine is specialised on the type of each array it takes, the read-only flag
+    and the layout included. A read-only view (a broadcast, even one that is contiguous, such as
+    one trial's (n,) mask as (1, n)) therefore compiles a second copy of every routine it
+    reaches: the filter kernel took 13 s of LLVM per copy, and a process that ran one trial
+    and then a batch compiled it twice.
+    """
+    out: np.ndarray = np.asarray(arr, dtype=dtype)
+    if out.shape == shape and out.flags.c_contiguous and out.flags.writeable:
+        return out
+    return np.array(np.broadcast_to(out, shape), order="C")

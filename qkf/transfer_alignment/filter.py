@@ -41,6 +41,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.core.jit import kernel_array
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.model import gauss_legendre
 from qkf.transfer_alignment.params import FilterParams
@@ -228,9 +229,7 @@ class TransferAlignmentKF:
         n = gyro.shape[1]
         ads_q = _block(ads_q, b, 4, "ads_q", n)
         ads_rate = _block(ads_rate, b, 3, "ads_rate", n)
-        has_meas = np.asarray(has_meas, dtype=bool)
-        if has_meas.shape != (b, n) or not has_meas.flags.c_contiguous:
-            has_meas = np.ascontiguousarray(np.broadcast_to(has_meas, (b, n)))
+        has_meas = kernel_array(has_meas, bool, (b, n))  # one compiled kernel, not two
         kap = expand_kappa(kappa, b, n)
         # the fields of kernel.Records, in order; axis 1 of cov empty: not recorded
         rec = (

@@ -60,7 +60,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from qkf.core.jit import kernel_jit, row_loops
+from qkf.core.jit import kernel_array, kernel_jit, row_loops
 from qkf.core.quat import quat_mul_exp, relative_rotvec
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.filter import SensorData, TransferAlignmentKF
@@ -940,9 +940,7 @@ def run_bank(
         gyro=gyro,
         ads_q=np.ascontiguousarray(sensors.ads_q, dtype=float),
         ads_rate=np.ascontiguousarray(sensors.ads_rate, dtype=float),
-        has_meas=np.ascontiguousarray(
-            np.broadcast_to(np.asarray(sensors.has_meas, dtype=bool), (b, n))
-        ),
+        has_meas=kernel_array(sensors.has_meas, bool, (b, n)),
     )
     out = BankOutputs(
         est=np.empty((b, n, 16)),

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qkf.core.jit import kernel_array
 from qkf.transfer_alignment.config import Config
 from qkf.transfer_alignment.methods.base import MethodOutput
 from qkf.transfer_alignment.methods.batch.sensitivity import N_Y
@@ -62,7 +63,7 @@ def solve_batch(
         gyro=np.ascontiguousarray(data.gyro, dtype=float),
         ads_q=np.ascontiguousarray(data.ads_q, dtype=float),
         ads_rate=np.ascontiguousarray(data.ads_rate, dtype=float),
-        meas=np.ascontiguousarray(np.broadcast_to(np.asarray(data.has_meas, dtype=bool), (b, n))),
+        meas=kernel_array(data.has_meas, bool, (b, n)),
         slot=slot,
     )
     consts = Constants(
