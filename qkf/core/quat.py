@@ -38,7 +38,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from qkf.core.jit import kernel_jit
+from qkf.core.jit import kernel_array, kernel_jit
 
 # ---- Rodrigues coefficients and matrices (kernel options: fast-math, no NRT) -------------------
 
@@ -227,9 +227,9 @@ def attitude_error(q_hat: np.ndarray, q: np.ndarray) -> np.ndarray:
     if q_hat.shape[-1:] != (4,):
         raise ValueError(f"quaternions need a last axis of 4, got shape {q_hat.shape}")
     out = np.empty((*q_hat.shape[:-1], 3))
-    attitude_error_into(
-        np.ascontiguousarray(q_hat.reshape(-1, 4)),
-        np.ascontiguousarray(q.reshape(-1, 4)),
+    attitude_error_into(  # writable C rows: a broadcast view would compile another copy
+        kernel_array(q_hat, float, q_hat.shape).reshape(-1, 4),
+        kernel_array(q, float, q.shape).reshape(-1, 4),
         out.reshape(-1, 3),
     )
     return out

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from qkf.core.jit import kernel_array
 from qkf.core.quat import compose_rotvecs
 from qkf.core.time_grid import outside_windows
 from qkf.sca_fusion.config import Simulation
@@ -108,7 +109,8 @@ def simulate(sim: Simulation) -> SimulatedData:
     signs = rng_out.choice([-1.0, 1.0], size=(n_out, 3))
     nu[out_idx] += sim.sca_outliers.size_sigma * sca_sigma * signs
     q_sca = np.empty_like(q)
-    compose_rotvecs(q, nu, q_sca)  # q ⊗ Exp(ν), bit for bit scipy's composition
+    q_rows = kernel_array(q, float, q.shape)  # one compiled copy (qkf.core.jit.kernel_array)
+    compose_rotvecs(q_rows, nu, q_sca)  # q ⊗ Exp(ν), bit for bit scipy's composition
 
     acc_sigma = np.asarray(sim.acc_noise_rad_s2)
     bias = np.asarray(sim.acc_bias_rad_s2)

@@ -83,7 +83,11 @@ class FilterRecord:
         0 at epochs without a measurement; −inf once the trial has diverged.
         """
         out = np.empty(self.nis.shape)
-        _loglik_into(self.nis, self.logdet_s, self.est, out)
+        # the stats' columns are strided views; one array type compiles the routine once
+        nis, logdet, est = (
+            kernel_array(a, float, a.shape) for a in (self.nis, self.logdet_s, self.est)
+        )
+        _loglik_into(nis, logdet, est, out)
         return out
 
 

@@ -11,6 +11,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
+from qkf.core.jit import kernel_array
 from qkf.core.quat import attitude_error_into
 from qkf.transfer_alignment.states import GROUPS, N_STATES
 
@@ -32,6 +33,8 @@ def state_errors(
         if arr.shape != (b, n, width):
             raise ValueError(f"{name} has shape {arr.shape}, expected ({b}, {n}, {width})")
     err = np.empty((b, n, N_STATES))
+    # one array type whatever the views given: each other type compiles the routine again
+    est, q_true, bias, calib = (kernel_array(a, float, a.shape) for a in (est, q_true, bias, calib))
     _state_errors_into(est, q_true, bias, calib, err)
     return err
 

@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 
 from qkf.core import units
+from qkf.core.jit import kernel_array
 from qkf.core.quat import compose_rotvecs, cumulative_rotation
 from qkf.core.time_grid import epochs_in, outside_windows
 from qkf.transfer_alignment.config import (
@@ -349,7 +350,9 @@ def simulate(cfg: Config, seed: int, trials: np.ndarray | list[int] | int) -> Sc
     for row, times in enumerate(trial_jumps):
         jumps_t[row, : len(times)] = times
     ads_q = np.empty((b * n, 4))  # C_ADS = C Exp(ν_a)
-    compose_rotvecs(np.ascontiguousarray(q_all).reshape(-1, 4), nu_a.reshape(-1, 3), ads_q)
+    # writable C arrays: one trial's broadcast is a read-only view, another compiled copy
+    q_rows = kernel_array(q_all, float, q_all.shape).reshape(-1, 4)
+    compose_rotvecs(q_rows, kernel_array(nu_a, float, nu_a.shape).reshape(-1, 3), ads_q)
     return ScenarioData(
         t=t,
         dt=dt,
