@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qkf.core.jit import kernel_jit, row_loops
+from qkf.core.jit import kernel_array, kernel_jit, row_loops
 
 
 @kernel_jit(nrt=True)
@@ -306,8 +306,10 @@ _update_batch = row_loops(_update_row, "x.shape[0]").parallel
 
 
 def _batched(arr: np.ndarray, batch: int, ndim: int) -> np.ndarray:
+    """``arr`` (its last ``ndim`` axes) for every batch member: one writable C array type
+    (:func:`~qkf.core.jit.kernel_array`; a broadcast view compiled the update again)."""
     arr = np.asarray(arr, dtype=np.float64)
-    return np.ascontiguousarray(np.broadcast_to(arr, (batch, *arr.shape[arr.ndim - ndim :])))
+    return kernel_array(arr, np.float64, (batch, *arr.shape[arr.ndim - ndim :]))
 
 
 def predict(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> None:
