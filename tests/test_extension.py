@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from qkf.cli import app
-from qkf.core.registry import Registry, RegistryError, load_object
+from qkf.core.registry import Imported, Registry, RegistryError, load_object
 from qkf.transfer_alignment.benchmark import run_benchmark
 from qkf.transfer_alignment.methods import (
     MethodOutputError,
@@ -179,3 +179,13 @@ def test_registry() -> None:
     assert load_object("numpy.linalg:norm") is np.linalg.norm
     with pytest.raises(RegistryError, match="has no attribute"):
         load_object("numpy:no_such_thing")
+
+
+def test_an_imported_attribute_is_loaded_when_read() -> None:
+    class Facts:
+        norm = Imported("numpy.linalg:norm")
+        missing = Imported("numpy:no_such_thing")  # refused when read, not when defined
+
+    assert Facts.norm is np.linalg.norm and Facts().norm is np.linalg.norm
+    with pytest.raises(RegistryError, match="has no attribute"):
+        Facts().missing

@@ -123,10 +123,9 @@ class RedundantGyros:
     def trial_errors(self, cfg: Any, request: TrialRequest) -> dict[str, np.ndarray]:
         """``√J`` per episode of each method (:mod:`qkf.redundant_gyros.methods`), the tuned
         ones tuned on :meth:`tuning`'s episodes of ``request.tuning_cfg`` (None: ``cfg``).
-        ``request.cache``:
-        each method's ``J`` per episode is read from the results cache when stored under
-        :func:`results_key` and stored there when computed (a method that cannot be described:
-        ``off``); the episodes are simulated only if some method is computed."""
+        ``request.cache``: each method's ``J`` per episode is read from the results cache when
+        stored under :func:`results_key` and stored there when computed (a method that cannot
+        be described: ``off``); the episodes are simulated only if some method is computed."""
         from qkf.core.montecarlo import progress_bar
         from qkf.core.results_cache import Entry, ResultsCache
 
