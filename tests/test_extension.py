@@ -188,4 +188,4 @@ def test_an_imported_attribute_is_loaded_when_read() -> None:
 
     assert Facts.norm is np.linalg.norm and Facts().norm is np.linalg.norm
     with pytest.raises(RegistryError, match="has no attribute"):
-        Facts().missing
+        _ = Facts().missing
