@@ -185,7 +185,10 @@ def test_an_imported_attribute_is_loaded_when_read() -> None:
     class Facts:
         norm = Imported("numpy.linalg:norm")
         missing = Imported("numpy:no_such_thing")  # refused when read, not when defined
+        broken = Imported("no_such_package.module:NAME")
 
     assert Facts.norm is np.linalg.norm and Facts().norm is np.linalg.norm
-    with pytest.raises(RegistryError, match="has no attribute"):
+    with pytest.raises(AttributeError, match="no_such_thing"):
         _ = Facts().missing
+    with pytest.raises(ModuleNotFoundError, match="no_such_package"):  # its own error
+        _ = Facts().broken

@@ -96,6 +96,9 @@ def test_kernel_array_hands_the_kernels_one_array_type() -> None:
     np.testing.assert_array_equal(strided, [[0.0, 2.0, 4.0], [6.0, 8.0, 10.0]])
     fine = np.ones((2, 3), dtype=bool)
     assert kernel_array(fine, bool, (2, 3)) is fine  # nothing to copy
+    for wrong in (np.ones(4), np.ones((1, 2, 3))):  # as np.broadcast_to refuses them
+        with pytest.raises(ValueError, match="broadcast"):
+            kernel_array(wrong, float, (2, 3))
 
 
 def test_the_filter_kernel_gets_a_writable_mask_from_every_caller(

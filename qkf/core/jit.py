@@ -281,7 +281,9 @@ def kernel_array(arr: Any, dtype: type, shape: tuple[int, ...]) -> np.ndarray:
         if out.flags.c_contiguous and out.flags.writeable:
             return out
         return np.array(out, order="C")
+    if out.ndim > len(shape):  # assignment would drop leading axes of length 1
+        raise ValueError(f"an array of shape {out.shape} cannot be broadcast to {shape}")
     # np.broadcast_to costs ten times the copy at an environment step's sizes: assign instead
     full: np.ndarray = np.empty(shape, dtype=dtype)
-    full[...] = out  # broadcasts, or raises as np.broadcast_to would
+    full[...] = out  # broadcasts, or raises ValueError naming both shapes
     return full

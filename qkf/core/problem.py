@@ -193,5 +193,6 @@ __all__ = [
     "MethodOutputError",
     "Problem",
     "SeedRanges",
+    "TrialRequest",
     "problem_of_env",
 ]

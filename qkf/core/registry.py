@@ -46,13 +46,18 @@ def load_object(spec: str) -> Any:
 
 class Imported:
     """A class attribute imported when it is read: ``methods = Imported("pkg.module:NAME")``,
-    so that the object holding it loads without the module (a problem's facts sheet)."""
+    so that the object holding it loads without the module (a problem's facts sheet). A module
+    that fails to import raises its own error, traceback and all: it is a fault of the
+    installation, not a spec to report."""
 
     def __init__(self, spec: str) -> None:
-        self.spec = spec
+        self.module, _, self.attr = spec.partition(":")
 
     def __get__(self, obj: object, owner: type | None = None) -> Any:
-        return load_object(self.spec)
+        value: Any = importlib.import_module(self.module)
+        for part in self.attr.split("."):
+            value = getattr(value, part)
+        return value
 
 
 class Registry(Generic[T]):

@@ -120,4 +120,4 @@ class FamiliesStudy(Protocol):
         ...
 
 
-__all__ = ["Bench", "FamiliesStudy", "StudyResults", "StudyRun"]
+__all__ = ["Bench", "FamiliesStudy", "StudyEvents", "StudyResults", "StudyRun"]

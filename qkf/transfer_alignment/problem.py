@@ -117,12 +117,13 @@ class TransferAlignment:
 
     def trial_errors(self, cfg: Any, request: TrialRequest) -> dict[str, np.ndarray]:
         """``state_settled`` per trial of each method of a
-        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. With ``tuning_cfg`` (a
-        shift family: the training mixture, ``Families.shift_tuned_on``) every method that tunes
-        on the judged config (it has a ``prepare``) tunes on ``tuning_cfg``'s scenario instead,
-        as its ``-mixed`` twin does (:class:`~.methods.on_mixture.TunedOnScenario`); the
-        ``-mixed`` twins themselves are unchanged. ``cache``: the bench's results cache, per
-        chunk of trials and per tuning (a damaged entry: a ``CacheWarning``)."""
+        :func:`~qkf.transfer_alignment.benchmark.run_benchmark` run. With
+        ``request.tuning_cfg`` (a shift family: the training mixture,
+        ``Families.shift_tuned_on``) every method that tunes on the judged config (it has a
+        ``prepare``) tunes on that config's scenario instead, as its ``-mixed`` twin does
+        (:class:`~.methods.on_mixture.TunedOnScenario`); the ``-mixed`` twins themselves are
+        unchanged. ``request.cache``: the bench's results cache, per chunk of trials and per
+        tuning (a damaged entry: a ``CacheWarning``)."""
         from qkf.transfer_alignment.benchmark import parse_methods, run_benchmark
         from qkf.transfer_alignment.methods import NamedMethod
         from qkf.transfer_alignment.methods.on_mixture import TunedOnMixture, TunedOnScenario
