@@ -14,11 +14,59 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qkf.core.jit import kernel_jit, row_loops
 from qkf.transfer_alignment import model
 from qkf.transfer_alignment.filter import TransferAlignmentKF
 from qkf.transfer_alignment.methods.vbakf import row_scales
-from qkf.transfer_alignment.methods.vbakf_compiled import vb_rows
+from qkf.transfer_alignment.methods.vbakf_compiled import vb_iterate
 from qkf.transfer_alignment.model_compiled import attitude_innovation
+
+
+@kernel_jit()
+def _vb_row(
+    b: int,
+    p_nom: np.ndarray,
+    nu: np.ndarray,
+    h: np.ndarray,
+    r_nom: np.ndarray,
+    u_prev: np.ndarray,
+    us_prev: np.ndarray,
+    tau: float,
+    rho: float,
+    iterations: int,
+    adapt_p: bool,
+    adapt_r: bool,
+    isotropic: bool,
+    dx: np.ndarray,
+    p: np.ndarray,
+    p_hat: np.ndarray,
+    r: np.ndarray,
+    u: np.ndarray,
+    us: np.ndarray,
+    ws: np.ndarray,
+) -> None:
+    """Row ``b`` of :func:`vb_rows`: ``vb_iterate`` with the posterior, shapes as there with
+    the batch in front (``h`` (B, m, 15)); ``ws`` (B, 7, max(m, a + 1), max(m, 15)) is scratch.
+    A row whose Cholesky factor of ``S`` fails gets NaN in every output."""
+    ok, u_new = vb_iterate(
+        p_nom[b], nu[b], h[b], r_nom[b], u_prev[b], us_prev[b], tau, rho, iterations,
+        adapt_p, adapt_r, isotropic, True, dx[b], p[b], p_hat[b], r[b], us[b], ws[b],
+    )  # fmt: skip
+    u[b] = u_new
+    if not ok:
+        dx[b] = np.nan
+        p[b] = np.nan
+        p_hat[b] = np.nan
+        r[b] = np.nan
+        us[b] = np.nan
+        u[b] = np.nan
+
+
+vb_rows = row_loops(_vb_row, "h.shape[0]").parallel
+""":func:`_vb_row` for every row of a batch (its arguments after the row index), rows in
+parallel; the outputs ``dx`` … ``us`` are written in place. The caller checks the shapes. The
+method itself calls ``vb_iterate`` from its epoch routine; this loop is the tests' door to the
+step alone."""
 
 
 @dataclass(frozen=True)
