@@ -33,14 +33,19 @@ def load_object(spec: str) -> Any:
     if not sep or not module_name or not attr:
         raise RegistryError(f"{spec!r}: expected module:attribute")
     try:
-        obj: Any = importlib.import_module(module_name)
+        module = importlib.import_module(module_name)
     except ImportError as exc:
         raise RegistryError(f"{spec!r}: cannot import {module_name}: {exc}") from None
-    for part in attr.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError:
-            raise RegistryError(f"{spec!r}: {module_name} has no attribute {attr}") from None
+    try:
+        return _attribute(module, attr)
+    except AttributeError:
+        raise RegistryError(f"{spec!r}: {module_name} has no attribute {attr}") from None
+
+
+def _attribute(obj: Any, dotted: str) -> Any:
+    """``obj.a.b`` for ``dotted`` = ``"a.b"``."""
+    for part in dotted.split("."):
+        obj = getattr(obj, part)
     return obj
 
 
@@ -54,10 +59,7 @@ class Imported:
         self.module, _, self.attr = spec.partition(":")
 
     def __get__(self, obj: object, owner: type | None = None) -> Any:
-        value: Any = importlib.import_module(self.module)
-        for part in self.attr.split("."):
-            value = getattr(value, part)
-        return value
+        return _attribute(importlib.import_module(self.module), self.attr)
 
 
 class Registry(Generic[T]):

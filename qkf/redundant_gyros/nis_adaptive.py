@@ -79,6 +79,11 @@ class EpisodeBatch:
             ukf.load(row, e.inputs)
         return cls(cfg, ukf, np.array([e.settled_from for e in eps]))
 
+    def kappa_range(self) -> tuple[float, float]:
+        """The smallest and largest κ of the action set: where the adaptive rules clip κ."""
+        kappas = np.asarray(self.cfg.environment.actions.values(), dtype=float)
+        return float(kappas.min()), float(kappas.max())
+
     def criterion(self, total: np.ndarray) -> np.ndarray:
         """``J`` per episode (n,) from ``total`` (n,), the sum over the episodes of
         :meth:`BatchedUKF.settled_square`: its mean over the judged epochs and the four states;
@@ -97,8 +102,7 @@ def run_rule_on(b: EpisodeBatch, rule: NisRule) -> np.ndarray:
     """:func:`run_rule` on episodes drawn before."""
     ukf = b.ukf
     ukf.restart(np.arange(ukf.n))
-    kappas = np.asarray(b.cfg.environment.actions.values(), dtype=float)
-    lo, hi = float(kappas.min()), float(kappas.max())
+    lo, hi = b.kappa_range()
     a = 1.0 - 2.0 ** (-1.0 / rule.halflife)
     kappa = np.full(ukf.n, rule.kappa0)
     m = np.zeros(ukf.n)

@@ -85,8 +85,7 @@ def run_rule_on(b: EpisodeBatch, rule: SageHusaRule) -> np.ndarray:
     if not ukf.keep_cov:
         raise ValueError("the Sage–Husa rule needs the epochs' covariances (keep_cov=True)")
     ukf.restart(np.arange(ukf.n))
-    kappas = np.asarray(b.cfg.environment.actions.values(), dtype=float)
-    lo, hi = float(kappas.min()), float(kappas.max())
+    lo, hi = b.kappa_range()
     q2 = ukf.setup.q_sd**2  # the nominal process noise per second (κ = 1)
     dt = ukf.sampler.dt
     kappa = np.full(ukf.n, rule.kappa0)
