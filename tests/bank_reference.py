@@ -2,7 +2,9 @@
 over trials, with the arguments of their numpy references, for tests/test_bank_compiled.py.
 
 Each piece runs per trial (a per-row routine here), and :func:`qkf.core.jit.row_loops` runs
-the rows in parallel. Compiled without numba's on-disk cache: numba would check a cache entry
+the rows one after the other: its serial loop compiles in a fraction of the parallel one's
+time (a parallel loop is a second, larger compilation; 1–3 s a piece here), and the tests'
+batches are a few rows. Compiled without numba's on-disk cache: numba would check a cache entry
 against this file only, and the copies of the bank's routines compiled into it would go stale
 when bank_compiled.py changes (qkf.core.numba_cache covers the package, not the tests).
 """
@@ -40,7 +42,7 @@ def _unit_noise_row(
     unit_noise(dt, coef_g, coef_tt, rate[t], p_hat[t], u[t], _make_work(1))
 
 
-_unit_noise_rows = row_loops(_unit_noise_row, "rate.shape[0]", cache=False).parallel
+_unit_noise_rows = row_loops(_unit_noise_row, "rate.shape[0]", cache=False).serial
 
 
 def unit_calibration_noise_compiled(dt: float, rate: np.ndarray, p_hat: np.ndarray) -> np.ndarray:
@@ -75,7 +77,7 @@ def _mix_row(
     )  # fmt: skip
 
 
-_mix_rows = row_loops(_mix_row, "mu.shape[0]", cache=False).parallel
+_mix_rows = row_loops(_mix_row, "mu.shape[0]", cache=False).serial
 
 
 def mix_bank_compiled(
@@ -114,7 +116,7 @@ def _combine_row(t: int, est: np.ndarray, w: np.ndarray, out: np.ndarray) -> Non
         combine_one(est[t, k], w[t, k], out[t, k], rel)
 
 
-_combine_rows = row_loops(_combine_row, "w.shape[0]", cache=False).parallel
+_combine_rows = row_loops(_combine_row, "w.shape[0]", cache=False).serial
 
 
 def combine_compiled(est: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -139,7 +141,7 @@ def _mixture_row(
     mixture_covariance_one(est[t], cov[t], w[t], est_mix[t], out[t], scratch, used)
 
 
-_mixture_rows = row_loops(_mixture_row, "w.shape[0]", cache=False).parallel
+_mixture_rows = row_loops(_mixture_row, "w.shape[0]", cache=False).serial
 
 
 def mixture_covariance_compiled(

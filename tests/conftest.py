@@ -119,6 +119,31 @@ def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> It
         os.environ["QKF_CACHE_DIR"] = before
 
 
+@pytest.fixture(scope="session")
+def ray_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One local Ray cluster (2 CPUs) for every test of this process that runs the ``ray``
+    backend, which uses a cluster already started (``qkf.core.montecarlo``) and leaves it
+    running. Yields a folder on its workers' import path, with the checkout, for modules a
+    test writes (a user's method): Ray's workers take the environment of the process that
+    started the cluster, so a later module is importable there only from a folder named
+    at the start. A cluster and its workers' first imports cost 10–20 s; shared, once per
+    test process instead of once per test (the tests are one ``xdist_group``, so
+    ``pytest -n auto --dist loadgroup`` runs them in one process). CI installs the extra:
+    there the backend is tested, not skipped."""
+    import os
+
+    ray = __import__("ray") if os.environ.get("CI") else pytest.importorskip("ray")
+    modules = tmp_path_factory.mktemp("ray_modules")
+    path = os.pathsep.join(p for p in (str(modules), str(ROOT), os.environ.get("PYTHONPATH")) if p)
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("PYTHONPATH", path)
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        yield modules
+    finally:
+        ray.shutdown()
+
+
 def _placeholder_png() -> bytes:
     """A valid 1 × 1 PNG: what an unrendered figure writes."""
     import io

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,20 +32,10 @@ def test_process_pool_matches_in_process(inline) -> None:  # type: ignore[no-unt
             np.testing.assert_array_equal(a.kappa, b.kappa)
 
 
-@pytest.mark.slow  # starts a Ray cluster
-def test_ray_matches_local(inline) -> None:  # type: ignore[no-untyped-def]
-    if os.environ.get("CI"):
-        # CI installs the extra: there the backend must be tested, not skipped
-        import ray
-    else:
-        ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        res = run_benchmark(
-            cfg_with(*SETS), METHODS, trials=5, seed=3, progress=False, backend="ray"
-        )
-    finally:
-        ray.shutdown()
+@pytest.mark.slow
+@pytest.mark.xdist_group("ray")
+def test_ray_matches_local(inline, ray_cluster: Path) -> None:  # type: ignore[no-untyped-def]
+    res = run_benchmark(cfg_with(*SETS), METHODS, trials=5, seed=3, progress=False, backend="ray")
     for name, rms in _rms(inline).items():
         np.testing.assert_array_equal(_rms(res)[name], rms)
 

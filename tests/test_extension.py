@@ -75,7 +75,13 @@ def _rms(res) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.slow  # a process pool and a Ray cluster
-def test_user_method_runs_identically_under_every_backend(user_module: str) -> None:
+@pytest.mark.xdist_group("ray")
+def test_user_method_runs_identically_under_every_backend(
+    user_module: str, tmp_path: Path, ray_cluster: Path
+) -> None:
+    # the session's Ray workers import the module from the cluster's folder
+    written = tmp_path / "userpkg" / f"{user_module}.py"
+    (ray_cluster / written.name).write_bytes(written.read_bytes())
     cfg = cfg_with(*SETS)
     spec = [f"half={user_module}:run_half_kappa", "kf"]
     inline = run_benchmark(cfg, spec, trials=5, seed=2, progress=False)
@@ -86,15 +92,7 @@ def test_user_method_runs_identically_under_every_backend(user_module: str) -> N
     pool = run_benchmark(cfg, spec, trials=5, seed=2, progress=False, workers=2)
     for name, rms in _rms(inline).items():
         np.testing.assert_array_equal(_rms(pool)[name], rms)
-    if os.environ.get("CI"):
-        import ray
-    else:
-        ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = run_benchmark(cfg, spec, trials=5, seed=2, progress=False, backend="ray")
-    finally:
-        ray.shutdown()
+    remote = run_benchmark(cfg, spec, trials=5, seed=2, progress=False, backend="ray")
     for name, rms in _rms(inline).items():
         np.testing.assert_array_equal(_rms(remote)[name], rms)
 

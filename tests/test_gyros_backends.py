@@ -6,7 +6,6 @@ checks them, and recorded in run.json."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -74,16 +73,9 @@ def test_process_pool_writes_the_same_files(in_process: Path, tmp_path: Path) ->
     assert (first["backend"], first["workers"]) == ("local", 1)
 
 
-def test_ray_writes_the_same_files(in_process: Path, tmp_path: Path) -> None:
-    if os.environ.get("CI"):
-        import ray  # CI installs the extra: there the backend must be tested, not skipped
-    else:
-        ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        folder = _bench(tmp_path / "ray", "--backend", "ray")
-    finally:
-        ray.shutdown()
+@pytest.mark.xdist_group("ray")
+def test_ray_writes_the_same_files(in_process: Path, tmp_path: Path, ray_cluster: Path) -> None:
+    folder = _bench(tmp_path / "ray", "--backend", "ray")
     _same_csv(in_process, folder)
     info = json.loads((folder / "run.json").read_text())
     assert info["backend"] == "ray"

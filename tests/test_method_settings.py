@@ -111,32 +111,26 @@ def test_setting_from_set_reaches_the_method(inline: Path) -> None:
     assert _config(inline)["adaptive"]["mine"] == {"gain": 2.0}
 
 
-@pytest.mark.parametrize("backend", [("--workers", "2"), ("--backend", "ray")], ids=str)
+@pytest.mark.parametrize(
+    "backend",
+    [("--workers", "2"), pytest.param(("--backend", "ray"), marks=pytest.mark.xdist_group("ray"))],
+    ids=str,
+)
 def test_every_backend_passes_the_setting_on(
-    inline: Path, tmp_path: Path, importable: None, backend: tuple[str, str]
+    inline: Path,
+    tmp_path: Path,
+    importable: None,
+    backend: tuple[str, str],
+    request: pytest.FixtureRequest,
 ) -> None:
     """The config, user section included, travels to pool and Ray workers by pickling, and they
     import the method (and its model) by name: the same files, bit for bit."""
-    ray = None
     if backend[0] == "--backend":
-        ray = __import__("ray") if os.environ.get("CI") else pytest.importorskip("ray")
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        request.getfixturevalue("ray_cluster")  # its workers import from the checkout
     out = tmp_path / "out"
-    try:
-        code, text = _bench(
-            "paper",
-            "--methods",
-            f"kf,{MINE}",
-            "--trials",
-            "4",
-            *GAIN_2,
-            *backend,
-            "--out",
-            str(out),
-        )
-    finally:
-        if ray is not None:
-            ray.shutdown()
+    code, text = _bench(
+        "paper", "--methods", f"kf,{MINE}", "--trials", "4", *GAIN_2, *backend, "--out", str(out)
+    )
     assert code == 0, text
     assert _config(out) == _config(inline)
     for name in ("kappa.csv", "rms.csv", "trials.csv"):

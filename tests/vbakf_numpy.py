@@ -62,11 +62,12 @@ def _vb_row(
         u[b] = np.nan
 
 
-vb_rows = row_loops(_vb_row, "h.shape[0]").parallel
-""":func:`_vb_row` for every row of a batch (its arguments after the row index), rows in
-parallel; the outputs ``dx`` … ``us`` are written in place. The caller checks the shapes. The
-method itself calls ``vb_iterate`` from its epoch routine; this loop is the tests' door to the
-step alone."""
+vb_rows = row_loops(_vb_row, "h.shape[0]").serial
+""":func:`_vb_row` for every row of a batch (its arguments after the row index), rows one
+after the other (the serial loop compiles in a third of the parallel one's time); the
+outputs ``dx`` … ``us`` are written in place. The caller checks the shapes. The method
+itself calls ``vb_iterate`` from its epoch routine; this loop is the tests' door to the step
+alone."""
 
 
 @dataclass(frozen=True)
@@ -112,9 +113,9 @@ def vb_step(
     start). ``isotropic``: update with ``(tr R̂_a / a) I`` instead of ``R̂_a``.
 
     ``compiled``: the compiled step
-    (:data:`~qkf.transfer_alignment.methods.vbakf_compiled.vb_rows`) instead of numpy, for the
-    15 error states only: the same results to rounding, rows in parallel and independent of each
-    other, and a row whose ``S`` has a non-positive Cholesky pivot (or NaN) gets NaN everywhere.
+    (:data:`vb_rows`) instead of numpy, for the 15 error states only: the same results to
+    rounding, rows independent of each other, and a row whose ``S`` has a non-positive
+    Cholesky pivot (or NaN) gets NaN everywhere.
     """
     if iterations < 1:
         raise ValueError("iterations must be at least 1")
