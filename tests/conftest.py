@@ -158,24 +158,67 @@ def _placeholder_png() -> bytes:
 PLACEHOLDER_PNG = _placeholder_png()
 
 
-@pytest.fixture(autouse=True)
-def _figures_built_but_not_rendered(
-    request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Every figure is built (its plotting code runs), but only tests marked ``figures``
-    render it: the rendering is matplotlib's layout of the ticks and labels, 0.3–5 s a figure
-    and about a quarter of the whole suite's time (356 figures, 440 worker-seconds, measured
-    with a timer in ``figure_png``). Elsewhere ``Figure.savefig`` writes a 1 × 1 PNG, so file
-    lists and PNG signatures stay checkable. Fixtures of a module or the session render for
-    real (they are set up before this fixture)."""
-    if request.node.get_closest_marker("figures") is not None:
-        return
+_RENDER = [False]
+"""Whether ``Figure.savefig`` renders now (:func:`_figures_built_but_not_rendered`)."""
+_MODULES_THAT_RENDER: dict[str, bool] = {}
+
+
+def _marked(item: pytest.Item) -> bool:
+    return item.get_closest_marker("figures") is not None
+
+
+def _module_renders(item: pytest.Item) -> bool:
+    """Whether a test of ``item``'s module is marked ``figures``: the fixtures of that module
+    (set up by whichever of its tests comes first) may write figures a marked test reads."""
+    key = item.nodeid.split("::")[0]
+    if key not in _MODULES_THAT_RENDER:
+        _MODULES_THAT_RENDER[key] = any(
+            _marked(i) for i in item.session.items if i.nodeid.split("::")[0] == key
+        )
+    return _MODULES_THAT_RENDER[key]
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+    # fixtures of every scope are set up here, module and session ones included
+    _RENDER[0] = _marked(item) or _module_renders(item)
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
+    _RENDER[0] = _marked(item)
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item: pytest.Item) -> Iterator[None]:
+    _RENDER[0] = False
+    yield
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _figures_built_but_not_rendered() -> Iterator[None]:
+    """Every figure is built (its plotting code runs), but rendered only for tests marked
+    ``figures``: the rendering is matplotlib's layout of the ticks and labels, 0.3–5 s a
+    figure and about a quarter of the whole suite's time (356 figures, 440 worker-seconds,
+    measured with a timer in ``figure_png``). Elsewhere ``Figure.savefig`` writes a 1 × 1
+    PNG, so file lists and PNG signatures stay checkable. Fixtures render when a test of
+    their module is marked (they may be set up by an unmarked test of it first); a module
+    fixture that rendered every figure of a families study took 20 of its 24 s. Commands run
+    in a subprocess render for real."""
     from matplotlib.figure import Figure
 
+    real = Figure.savefig
+
     def savefig(self: Figure, fname: object, *args: object, **kwargs: object) -> None:
-        if hasattr(fname, "write"):
+        if _RENDER[0]:
+            real(self, fname, *args, **kwargs)  # type: ignore[arg-type]
+        elif hasattr(fname, "write"):
             fname.write(PLACEHOLDER_PNG)
         else:
             Path(str(fname)).write_bytes(PLACEHOLDER_PNG)
 
-    monkeypatch.setattr(Figure, "savefig", savefig)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Figure, "savefig", savefig)
+        yield
