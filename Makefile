@@ -35,12 +35,12 @@ bench: $(STAMP)
 TEST_ENV := NUMBA_NUM_THREADS=1
 
 test: $(STAMP)
-	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto --dist loadgroup
+	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto
 
 # Long Monte Carlo statistics, training and wheel builds are marked slow (pyproject.toml,
 # [tool.pytest.ini_options]); `make test` and CI (.ci/run) still run them.
 test-fast: $(STAMP)
-	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto --dist loadgroup -m "not slow"
+	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto -m "not slow"
 
 # test-fast as close to another x86-64 CPU as this one allows, for the pins of computed floats
 # (a test must pass on every machine): numba compiles for a generic CPU (its cache keeps that
@@ -52,7 +52,7 @@ NPY_DISPATCHED := import numpy as np; m = np._core._multiarray_umath; \
 test-portable: $(STAMP)
 	$(TEST_ENV) NUMBA_CPU_NAME=generic \
 	NPY_DISABLE_CPU_FEATURES="$$($(BIN)/python -c '$(NPY_DISPATCHED)')" \
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup -m "not slow"
+	$(BIN)/python -m pytest -q -n auto -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

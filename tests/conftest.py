@@ -127,9 +127,8 @@ def ray_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     test writes (a user's method): Ray's workers take the environment of the process that
     started the cluster, so a later module is importable there only from a folder named
     at the start. A cluster and its workers' first imports cost 10–20 s; shared, once per
-    test process instead of once per test (the tests are one ``xdist_group``, so
-    ``pytest -n auto --dist loadgroup`` runs them in one process). CI installs the extra:
-    there the backend is tested, not skipped."""
+    test process (at most one per pytest-xdist worker) instead of once per test. CI installs
+    the extra: there the backend is tested, not skipped."""
     import os
 
     ray = __import__("ray") if os.environ.get("CI") else pytest.importorskip("ray")

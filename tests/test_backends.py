@@ -33,7 +33,6 @@ def test_process_pool_matches_in_process(inline) -> None:  # type: ignore[no-unt
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("ray")
 def test_ray_matches_local(inline, ray_cluster: Path) -> None:  # type: ignore[no-untyped-def]
     res = run_benchmark(cfg_with(*SETS), METHODS, trials=5, seed=3, progress=False, backend="ray")
     for name, rms in _rms(inline).items():

@@ -75,7 +75,6 @@ def _rms(res) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.slow  # a process pool and a Ray cluster
-@pytest.mark.xdist_group("ray")
 def test_user_method_runs_identically_under_every_backend(
     user_module: str, tmp_path: Path, ray_cluster: Path
 ) -> None:

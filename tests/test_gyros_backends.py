@@ -73,7 +73,6 @@ def test_process_pool_writes_the_same_files(in_process: Path, tmp_path: Path) ->
     assert (first["backend"], first["workers"]) == ("local", 1)
 
 
-@pytest.mark.xdist_group("ray")
 def test_ray_writes_the_same_files(in_process: Path, tmp_path: Path, ray_cluster: Path) -> None:
     folder = _bench(tmp_path / "ray", "--backend", "ray")
     _same_csv(in_process, folder)

@@ -111,11 +111,7 @@ def test_setting_from_set_reaches_the_method(inline: Path) -> None:
     assert _config(inline)["adaptive"]["mine"] == {"gain": 2.0}
 
 
-@pytest.mark.parametrize(
-    "backend",
-    [("--workers", "2"), pytest.param(("--backend", "ray"), marks=pytest.mark.xdist_group("ray"))],
-    ids=str,
-)
+@pytest.mark.parametrize("backend", [("--workers", "2"), ("--backend", "ray")], ids=str)
 def test_every_backend_passes_the_setting_on(
     inline: Path,
     tmp_path: Path,
