@@ -29,6 +29,11 @@
 import os
 from pathlib import Path
 
+OUT = Path(os.environ.get("QKF_TUTORIAL_OUT", "results/tutorial"))
+if OUT.exists() and any(OUT.iterdir()):  # before the imports below, which take seconds
+    raise SystemExit(f"{OUT}: not empty; choose another QKF_TUTORIAL_OUT")
+
+# %%
 import matplotlib
 
 matplotlib.use("Agg")  # files, not windows: the script also runs without a display
@@ -40,14 +45,11 @@ from agents.training import train
 from qkf.transfer_alignment.campaigns import run_study
 
 SMALL = os.environ.get("QKF_TUTORIAL_SMALL") == "1"
-OUT = Path(os.environ.get("QKF_TUTORIAL_OUT", "results/tutorial"))
 STEPS = 1_024 if SMALL else 200_000  # environment steps of training
 TRIALS = 2 if SMALL else 32  # judged trials per family
 # shorter runs in the small version: 600 s instead of an hour, judged from 300 s on
 SHORT = ["scenario.duration_s=600", "run.settled_s=300"] if SMALL else []
 FAMILIES = ["steady_random", "thermal_snap_random"]
-if OUT.exists() and any(OUT.iterdir()):
-    raise SystemExit(f"{OUT}: not empty; choose another QKF_TUTORIAL_OUT")
 
 # %% [markdown]
 # ## 1. Train
