@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from envs import BatchedTransferAlignmentEnv, TransferAlignmentEnv
-from qkf.transfer_alignment import kernel
+from qkf.core.jit import SERIAL_BELOW
 
 SETS = ["scenario.duration_s=200"]
 
@@ -16,7 +16,7 @@ SETS = ["scenario.duration_s=200"]
 @pytest.mark.parametrize("observation", ["v0", "v3"])
 @pytest.mark.parametrize("reward", ["likelihood", "relative_state_gain"])
 def test_single_and_batched_trajectories_agree(observation: str, reward: str) -> None:
-    n = kernel.SERIAL_BELOW + 2  # the batched env takes the parallel path
+    n = SERIAL_BELOW + 2  # the batched env takes the parallel path
     vec = BatchedTransferAlignmentEnv(n, overrides=SETS, observation=observation, reward=reward)
     singles = [
         TransferAlignmentEnv(overrides=SETS, observation=observation, reward=reward)

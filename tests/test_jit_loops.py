@@ -7,7 +7,7 @@ import numba as nb
 import numpy as np
 import pytest
 
-from qkf.core.jit import kernel_array, kernel_jit, parallel_and_serial, row_loops
+from qkf.core.jit import SERIAL_BELOW, kernel_array, kernel_jit, parallel_and_serial, row_loops
 
 
 @kernel_jit(nrt=True, cache=False)
@@ -35,6 +35,12 @@ def test_row_loops_run_every_row_with_the_scratch_made_once() -> None:
     one = np.zeros(4)
     loops.row(2, a, 0.5, one, np.empty(4))  # the per-row entry: the routine itself
     assert one[2] == want[2] and not one[[0, 1, 3]].any()
+
+
+def test_small_batches_take_the_serial_loop() -> None:
+    loops = row_loops(_scaled_sum, "a.shape[0]", scratch=_work_for, cache=False)
+    assert [loops.for_rows(n) is loops.serial for n in (1, SERIAL_BELOW - 1)] == [True, True]
+    assert [loops.for_rows(n) is loops.parallel for n in (SERIAL_BELOW, 64)] == [True, True]
 
 
 def test_the_parallel_and_serial_copies_have_their_own_cache_names() -> None:
@@ -118,8 +124,8 @@ def test_the_filter_kernel_gets_a_writable_mask_from_every_caller(
     n = 3
     for b, mask in (
         (1, np.array([True, False, True])),
-        (kernel.SERIAL_BELOW, np.broadcast_to(np.array([True, False, True]), (4, n))),
-        (kernel.SERIAL_BELOW, np.ones((4, n), dtype=bool)),
+        (SERIAL_BELOW, np.broadcast_to(np.array([True, False, True]), (4, n))),
+        (SERIAL_BELOW, np.ones((4, n), dtype=bool)),
     ):
         kf = TransferAlignmentKF(params, b)
         kf.step(np.zeros((b, n, 3)), np.zeros((b, n, 4)), np.zeros((b, n, 3)), mask)

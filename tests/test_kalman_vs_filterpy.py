@@ -7,6 +7,7 @@ import pytest
 from filterpy.kalman import KalmanFilter
 
 from qkf.core import kalman
+from qkf.core.jit import SERIAL_BELOW
 
 
 def _toy(seed: int) -> tuple[np.ndarray, ...]:
@@ -25,12 +26,13 @@ def _toy(seed: int) -> tuple[np.ndarray, ...]:
     return phi, q, h, r, x0, p0, z
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_matches_filterpy_over_200_steps(seed: int) -> None:
+# the same problem several times (the batch axis must not mix members): a small batch runs the
+# serial loop, one of SERIAL_BELOW members the parallel one
+@pytest.mark.parametrize(("seed", "batch"), [(0, 3), (1, SERIAL_BELOW)])
+def test_matches_filterpy_over_200_steps(seed: int, batch: int) -> None:
     phi, q, h, r, x0, p0, z = _toy(seed)
     ref = KalmanFilter(dim_x=5, dim_z=2)
     ref.x, ref.P, ref.F, ref.Q, ref.H, ref.R = x0.copy(), p0.copy(), phi, q, h, r
-    batch = 3  # the same problem three times: the batch axis must not mix members
     x = np.ascontiguousarray(np.broadcast_to(x0, (batch, 5)))
     p = np.ascontiguousarray(np.broadcast_to(p0, (batch, 5, 5)))
     for k in range(200):

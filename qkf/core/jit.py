@@ -190,12 +190,26 @@ def parallel_and_serial(loop: _F, *, fastmath: bool = True, cache: bool = True) 
     )
 
 
+SERIAL_BELOW = 4
+"""Batches of fewer rows run a row loop's serial entry (:meth:`RowLoops.for_rows`; the filter
+kernel and the VB epoch choose the same way): for a batch of one or two a parallel region only
+costs, its threads started and joined every call and waiting for cores whenever other
+processes hold them (docs/performance.md). A process that runs small batches only never
+compiles the parallel loop either, which costs more than the serial one: 2–20 s of LLVM
+beyond the per-row routine (``benchmarks/compile_census.py``)."""
+
+
 class RowLoops(NamedTuple):
     """The entry points :func:`row_loops` makes of one per-row routine ``row(i, *args)``."""
 
     parallel: Callable[..., None]  # (*args): every row, rows on numba's threads
     serial: Callable[..., None]  # (*args): every row, in order, in the calling thread
     row: Callable[..., None]  # (i, *args): row i alone, the routine itself
+
+    def for_rows(self, n: int) -> Callable[..., None]:
+        """The loop for a batch of ``n`` rows: serial below :data:`SERIAL_BELOW`, else
+        parallel."""
+        return self.serial if n < SERIAL_BELOW else self.parallel
 
 
 def _parameters(dispatcher: Callable[..., Any]) -> list[str]:

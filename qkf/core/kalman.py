@@ -18,7 +18,8 @@ then symmetrised.
 input) leaves ``x`` and ``P`` untouched and reports ``ok = False``.
 
 The single-problem routines (``predict_one``, ``update_one``) work on one trial; ``predict``
-and ``update`` wrap them for a batch. The transfer-alignment kernel
+and ``update`` wrap them for a batch (members in parallel from
+:data:`~qkf.core.jit.SERIAL_BELOW` on, else one after the other). The transfer-alignment kernel
 (:mod:`qkf.transfer_alignment.kernel`) calls ``update_one`` (with ``make_workspace``) and the
 Cholesky helpers (``cholesky_inplace``, ``forward_solve``) for every trial, but not
 ``predict_one``: its propagation exploits the structure of ``Φ`` (only the attitude rows differ
@@ -301,8 +302,8 @@ def _update_row(
     ok[b], nis[b], logdet[b] = update_one(x[b], p[b], nu, h[b], r[b], s_out, ws)
 
 
-_predict_batch = row_loops(_predict_row, "x.shape[0]").parallel
-_update_batch = row_loops(_update_row, "x.shape[0]").parallel
+_predict_loops = row_loops(_predict_row, "x.shape[0]")
+_update_loops = row_loops(_update_row, "x.shape[0]")
 
 
 def _batched(arr: np.ndarray, batch: int, ndim: int) -> np.ndarray:
@@ -319,7 +320,7 @@ def predict(x: np.ndarray, p: np.ndarray, phi: np.ndarray, q: np.ndarray) -> Non
     """
     _check_state(x, p)
     b = x.shape[0]
-    _predict_batch(x, p, _batched(phi, b, 2), _batched(q, b, 2))
+    _predict_loops.for_rows(b)(x, p, _batched(phi, b, 2), _batched(q, b, 2))
 
 
 def update(
@@ -335,7 +336,7 @@ def update(
     ok = np.zeros(b, dtype=np.bool_)
     nis = np.empty(b)
     logdet = np.empty(b)
-    _update_batch(x, p, z, _batched(h, b, 2), _batched(r, b, 2), ok, nis, logdet)
+    _update_loops.for_rows(b)(x, p, z, _batched(h, b, 2), _batched(r, b, 2), ok, nis, logdet)
     return {"ok": ok, "nis": nis, "logdet_s": logdet}
 
 

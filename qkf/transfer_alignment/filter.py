@@ -41,7 +41,7 @@ import numba as nb
 import numpy as np
 
 import qkf.core.jit  # noqa: F401  (binds compiled callees locally: docs/performance.md)
-from qkf.core.jit import kernel_array
+from qkf.core.jit import SERIAL_BELOW, kernel_array
 from qkf.transfer_alignment import kernel as _ta_kernel
 from qkf.transfer_alignment.model import gauss_legendre
 from qkf.transfer_alignment.params import FilterParams
@@ -253,7 +253,7 @@ class TransferAlignmentKF:
         # A single environment's step calls this twice per decision period of ten epochs, so
         # the wrapper is kept to a few microseconds: the constants are built once per
         # parameter set, and the serial kernel takes plain tuples (docs/performance.md).
-        if b >= _ta_kernel.SERIAL_BELOW:
+        if b >= SERIAL_BELOW:
             _ta_kernel.run_block(
                 _ta_kernel.FilterState(*state),
                 _ta_kernel.Inputs(*inputs),

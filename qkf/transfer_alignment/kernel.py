@@ -809,13 +809,9 @@ def _epoch_loop(
 
 
 run_block = row_loops(_run_trial, "state.q_hat.shape[0]").parallel
-"""Run the n epochs of ``inputs`` for every trial (:func:`_run_trial`), trials in parallel."""
-
-
-SERIAL_BELOW = 4
-"""Batches of fewer trials run :func:`run_block_serial`: for a batch of one (the single
-environment, a recorded run) a parallel region only costs — its threads are started and joined
-every call, and wait for cores whenever other processes hold them (docs/performance.md)."""
+"""Run the n epochs of ``inputs`` for every trial (:func:`_run_trial`), trials in parallel.
+Batches below :data:`~qkf.core.jit.SERIAL_BELOW` trials (the single environment, a recorded
+run) run :func:`run_block_serial` instead."""
 
 
 @kernel_jit(nrt=True)

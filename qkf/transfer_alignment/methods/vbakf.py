@@ -91,6 +91,7 @@ import math
 
 import numpy as np
 
+from qkf.core.jit import SERIAL_BELOW
 from qkf.transfer_alignment import model
 from qkf.transfer_alignment.adaptive import VbakfConfig
 from qkf.transfer_alignment.config import Config
@@ -101,11 +102,7 @@ from qkf.transfer_alignment.methods.base import (
     uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
-from qkf.transfer_alignment.methods.vbakf_compiled import (
-    SERIAL_BELOW,
-    vb_epoch,
-    vb_epoch_serial,
-)
+from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch, vb_epoch_serial
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
 

@@ -350,11 +350,6 @@ def _epoch_workspace(
 
 vb_epoch, vb_epoch_serial, _ = row_loops(_epoch_trial, "p_nom.shape[0]", scratch=_epoch_workspace)
 """The epoch with the trials in parallel, and with the trials one after the other in the calling
-thread, for batches below :data:`SERIAL_BELOW`. One definition, but each compiled copy of the
-per-trial code rounds on its own: the two differ in the last bits (about 1e-14 in the estimates
-of a two-minute run), not more."""
-
-
-SERIAL_BELOW = 4
-"""Batches of fewer trials run :func:`vb_epoch_serial`: a parallel region is started and joined
-every call, which a batch of one or two only pays for (as the filter kernel does)."""
+thread, for batches below :data:`~qkf.core.jit.SERIAL_BELOW`. One definition, but each
+compiled copy of the per-trial code rounds on its own: the two differ in the last bits (about
+1e-14 in the estimates of a two-minute run), not more."""
