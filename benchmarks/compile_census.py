@@ -69,8 +69,9 @@ class _Listener(event.Listener):
 def pytest_configure(config: pytest.Config) -> None:
     """Pytest plugin entry: listen to numba's compile events when ``QKF_COMPILE_LOG`` is set."""
     folder = os.environ.get(LOG_ENV)
-    if folder:
+    if folder and not _state.get("listening"):  # once per process, however often configured
         event.register("numba:compile", _Listener(Path(folder)))
+        _state["listening"] = True
 
 
 @pytest.hookimpl(hookwrapper=True)
