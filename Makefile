@@ -13,6 +13,14 @@ TORCH := torch==2.13.0
 
 .PHONY: install bench test test-fast test-portable lint typecheck speed clean
 
+# Python keeps the bytecode of the modules it imports (__pycache__/*.pyc) unless
+# PYTHONDONTWRITEBYTECODE is set, as it is on some machines. The install leaves the compiling
+# to the first import (--no-compile below); with the variable set, every process compiled
+# torch, numpy, scipy, numba and qkf from source again: 10 s to import that stack, 3.8 s from
+# the bytecode. The suite starts dozens of processes (workers, commands, pools, Ray), so the
+# commands here write it: an empty value is "not set".
+PY_ENV := PYTHONDONTWRITEBYTECODE=
+
 # --no-compile: pip would byte-compile every module of every package (torch alone: 38 s
 # instead of 12 s on 2 cores); Python compiles the few that are imported, once, on first use.
 PIP := $(BIN)/python -m pip install --quiet --no-compile
@@ -27,12 +35,12 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 bench: $(STAMP)
-	$(BIN)/qkf bench paper --out results/paper --overwrite
+	$(PY_ENV) $(BIN)/qkf bench paper --out results/paper --overwrite
 
 # One numba thread per test worker: -n auto already puts a worker on every core, and numba's
 # own thread pool in each worker on top of that oversubscribes the cores (the parallel filter
 # kernel then waits on its threads: the suite took 10 min instead of 6 on 2 cores).
-TEST_ENV := NUMBA_NUM_THREADS=1
+TEST_ENV := NUMBA_NUM_THREADS=1 $(PY_ENV)
 
 test: $(STAMP)
 	$(TEST_ENV) $(BIN)/python -m pytest -q -n auto
