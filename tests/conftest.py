@@ -177,22 +177,33 @@ def _module_renders(item: pytest.Item) -> bool:
     return _MODULES_THAT_RENDER[key]
 
 
+def _render(on: bool) -> None:
+    """Render figures from now on (``on``), here and in the processes a test starts (through
+    ``qkf.core.plotting.PLACEHOLDER_ENV``, which they inherit), or write placeholders."""
+    import os
+
+    from qkf.core.plotting import PLACEHOLDER_ENV
+
+    _RENDER[0] = on
+    os.environ[PLACEHOLDER_ENV] = "" if on else "1"
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
     # fixtures of every scope are set up here, module and session ones included
-    _RENDER[0] = _marked(item) or _module_renders(item)
+    _render(_marked(item) or _module_renders(item))
     yield
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
-    _RENDER[0] = _marked(item)
+    _render(_marked(item))
     yield
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_teardown(item: pytest.Item) -> Iterator[None]:
-    _RENDER[0] = False
+    _render(False)
     yield
 
 
@@ -204,8 +215,10 @@ def _figures_built_but_not_rendered() -> Iterator[None]:
     measured with a timer in ``figure_png``). Elsewhere ``Figure.savefig`` writes a 1 × 1
     PNG, so file lists and PNG signatures stay checkable. Fixtures render when a test of
     their module is marked (they may be set up by an unmarked test of it first); a module
-    fixture that rendered every figure of a families study took 20 of its 24 s. Commands run
-    in a subprocess render for real."""
+    fixture that rendered every figure of a families study took 20 of its 24 s. Commands a
+    test runs in another process write placeholders the same way (the environment variable
+    ``qkf.core.plotting.PLACEHOLDER_ENV``: a short ``qkf bench`` spent 5 of its 8 s on its
+    figures)."""
     from matplotlib.figure import Figure
 
     real = Figure.savefig
