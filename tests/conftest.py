@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from qkf.core.plotting import placeholder_png
 from qkf.transfer_alignment.config import Config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -143,18 +144,7 @@ def ray_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         ray.shutdown()
 
 
-def _placeholder_png() -> bytes:
-    """A valid 1 × 1 PNG: what an unrendered figure writes."""
-    import io
-
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.new("RGBA", (1, 1)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-PLACEHOLDER_PNG = _placeholder_png()
+PLACEHOLDER_PNG = placeholder_png()  # what an unrendered figure writes
 
 
 _RENDER = [False]
