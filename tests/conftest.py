@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -7,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from qkf.core.plotting import placeholder_png
+from qkf.core.plotting import PLACEHOLDER_ENV, placeholder_png
 from qkf.transfer_alignment.config import Config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,8 +74,6 @@ def _tracked_files() -> list[Path]:
 def _no_command_deletes_a_file_it_did_not_write() -> Iterator[None]:
     """The whole suite fails if anything it ran deleted a file of the checkout, rewrote a
     shipped zoo file, or removed a file of the user's in the project root (issue 18)."""
-    import os
-
     tracked = [p for p in _tracked_files() if p.exists()]
     zoo = {p: p.stat().st_mtime_ns for p in tracked if "agents/zoo/" in p.as_posix()}
     sentinel = ROOT / f".qkf-test-sentinel-{os.getpid()}"
@@ -97,8 +96,6 @@ def _tuning_cache_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> It
     """Tuned methods cache their results under ``$QKF_CACHE_DIR``: the suite's own cache, so
     that no test reads a user's cached tuning or writes into their home; the results cache is
     off, and SB3's default log folder is the session's (nothing left in ``/tmp``)."""
-    import os
-
     before = os.environ.get("QKF_CACHE_DIR")
     os.environ["QKF_CACHE_DIR"] = str(tmp_path_factory.mktemp("qkf_cache"))
     # and no results cache: a test that compares two runs must see both computed
@@ -130,8 +127,6 @@ def ray_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     at the start. A cluster and its workers' first imports cost 10–20 s; shared, once per
     test process (at most one per pytest-xdist worker) instead of once per test. CI installs
     the extra: there the backend is tested, not skipped."""
-    import os
-
     ray = __import__("ray") if os.environ.get("CI") else pytest.importorskip("ray")
     modules = tmp_path_factory.mktemp("ray_modules")
     path = os.pathsep.join(p for p in (str(modules), str(ROOT), os.environ.get("PYTHONPATH")) if p)
@@ -147,8 +142,6 @@ def ray_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 PLACEHOLDER_PNG = placeholder_png()  # what an unrendered figure writes
 
 
-_RENDER = [False]
-"""Whether ``Figure.savefig`` renders now (:func:`_figures_built_but_not_rendered`)."""
 _MODULES_THAT_RENDER: dict[str, bool] = {}
 
 
@@ -170,11 +163,6 @@ def _module_renders(item: pytest.Item) -> bool:
 def _render(on: bool) -> None:
     """Render figures from now on (``on``), here and in the processes a test starts (through
     ``qkf.core.plotting.PLACEHOLDER_ENV``, which they inherit), or write placeholders."""
-    import os
-
-    from qkf.core.plotting import PLACEHOLDER_ENV
-
-    _RENDER[0] = on
     os.environ[PLACEHOLDER_ENV] = "" if on else "1"
 
 
@@ -214,7 +202,7 @@ def _figures_built_but_not_rendered() -> Iterator[None]:
     real = Figure.savefig
 
     def savefig(self: Figure, fname: object, *args: object, **kwargs: object) -> None:
-        if _RENDER[0]:
+        if not os.environ.get(PLACEHOLDER_ENV):
             real(self, fname, *args, **kwargs)  # type: ignore[arg-type]
         elif hasattr(fname, "write"):
             fname.write(PLACEHOLDER_PNG)

@@ -91,7 +91,6 @@ import math
 
 import numpy as np
 
-from qkf.core.jit import SERIAL_BELOW
 from qkf.transfer_alignment import model
 from qkf.transfer_alignment.adaptive import VbakfConfig
 from qkf.transfer_alignment.config import Config
@@ -102,7 +101,7 @@ from qkf.transfer_alignment.methods.base import (
     uses_settings,
 )
 from qkf.transfer_alignment.methods.covariance import CovarianceRecorder, step_recording
-from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch, vb_epoch_serial
+from qkf.transfer_alignment.methods.vbakf_compiled import vb_epoch_loops
 from qkf.transfer_alignment.params import FilterParams
 from qkf.transfer_alignment.scenario import ScenarioData
 
@@ -164,7 +163,7 @@ def run_vbakf(cfg: Config, data: ScenarioData) -> MethodOutput:
     p_out = np.empty((b, 15, 15))
     kap = np.empty((b, 9))
     bad = np.zeros(b, dtype=bool)
-    epoch = vb_epoch if b >= SERIAL_BELOW else vb_epoch_serial
+    epoch = vb_epoch_loops.for_rows(b)
     for k in range(n):
         active = has_meas[:, k] & ~kf.diverged
         if np.any(active):

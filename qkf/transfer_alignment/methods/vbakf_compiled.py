@@ -348,8 +348,9 @@ def _epoch_workspace(
     )
 
 
-vb_epoch, vb_epoch_serial, _ = row_loops(_epoch_trial, "p_nom.shape[0]", scratch=_epoch_workspace)
+vb_epoch_loops = row_loops(_epoch_trial, "p_nom.shape[0]", scratch=_epoch_workspace)
+vb_epoch, vb_epoch_serial = vb_epoch_loops.parallel, vb_epoch_loops.serial
 """The epoch with the trials in parallel, and with the trials one after the other in the calling
-thread, for batches below :data:`~qkf.core.jit.SERIAL_BELOW`. One definition, but each
-compiled copy of the per-trial code rounds on its own: the two differ in the last bits (about
-1e-14 in the estimates of a two-minute run), not more."""
+thread, for batches below :data:`~qkf.core.jit.SERIAL_BELOW` (``vb_epoch_loops.for_rows``).
+One definition, but each compiled copy of the per-trial code rounds on its own: the two differ
+in the last bits (about 1e-14 in the estimates of a two-minute run), not more."""
