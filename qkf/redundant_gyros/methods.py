@@ -18,8 +18,11 @@ judged ones. It returns ``J`` per judged episode (``inf`` where the filter fails
                     (:mod:`.nis_adaptive`)
 ``sage-husa``       Sage–Husa's process-noise estimate projected onto κ, its forgetting
                     factor and start tuned (:mod:`.sage_husa`)
-``constant-mixed``  ``constant``, ``clock``, ``nis-adaptive``, ``sage-husa`` tuned instead on
-                    the episodes of
+``vb-noise``        variational-Bayes estimates of the process- and measurement-noise scales,
+                    their ratio as κ; the scales adapted, their memory and start tuned
+                    (:mod:`.vb_noise`)
+``constant-mixed``  ``constant``, ``clock``, ``nis-adaptive``, ``sage-husa``, ``vb-noise``
+                    tuned instead on the episodes of
 ``clock-mixed``     the training mixture (``gyro_mixture``'s onsets in the judged config:
 ``nis-adaptive-``   :func:`with_mixture`): like for like with a policy trained on the mixture
 ``mixed``, …        (the ``-mixed`` twins of transfer alignment)
@@ -46,7 +49,7 @@ import numpy as np
 
 from qkf.core.config import ConfigError
 from qkf.core.registry import Registry, RegistryError
-from qkf.redundant_gyros import clock, nis_adaptive, sage_husa
+from qkf.redundant_gyros import clock, nis_adaptive, sage_husa, vb_noise
 from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros.config import GyrosConfig
 
@@ -101,6 +104,16 @@ def run_sage_husa(
     batch = nis_adaptive.EpisodeBatch.of_episodes
     rule, _ = sage_husa.tune_on(batch(cfg, tuning, keep_cov=True))
     return sage_husa.run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
+
+
+@GYRO_METHODS.register("vb-noise")
+def run_vb_noise(
+    cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
+) -> np.ndarray:
+    """The variational-Bayes noise scales of :mod:`.vb_noise`'s grid best over ``tuning``."""
+    batch = nis_adaptive.EpisodeBatch.of_episodes
+    rule, _ = vb_noise.tune_on(batch(cfg, tuning, keep_cov=True))
+    return vb_noise.run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
 
 
 @GYRO_METHODS.register("level-informed")
@@ -161,6 +174,7 @@ for _name, _method in (
     ("clock", run_clock),
     ("nis-adaptive", run_nis_adaptive),
     ("sage-husa", run_sage_husa),
+    ("vb-noise", run_vb_noise),
 ):
     GYRO_METHODS.register(f"{_name}-mixed", _tuned_on_mixture(_method))
 
@@ -197,5 +211,6 @@ __all__ = [
     "run_level_informed",
     "run_nis_adaptive",
     "run_sage_husa",
+    "run_vb_noise",
     "with_mixture",
 ]

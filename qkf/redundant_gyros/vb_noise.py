@@ -1,0 +1,243 @@
+r"""Variational-Bayes noise scales of the gyro calibration UKF, projected onto κ: a classical
+baseline for the gyro policies that tries to identify the episode's noise levels
+(docs/redundant_gyros.md, "VB noise scales").
+
+Model. The filter assumes ``w_k ~ N(0, Q₀_k)``, ``Q₀_k = diag(q²) Δt_k`` (κ = 1), and
+measurement variance ``R₀(x)`` (:mod:`~qkf.redundant_gyros.ukf`); the episode's truth has
+``Q = θ_Q Q₀`` and ``R = θ_R R₀`` with unknown scales (``gyro_noise_levels`` draws both).
+The posterior of each scale is inverse-Gamma, ``IG(α, β)``, with the point estimate
+``θ̂ = E[θ⁻¹]⁻¹ = β / α`` (as the VB adaptive filters plug it in, Särkkä & Nummenmaa, IEEE
+TAC 54(3), 2009). A filter with ``(θ_Q Q₀, θ_R R₀)`` has the gain of one with
+``(θ_Q/θ_R · Q₀, R₀)`` (the gain depends on the ratio; the prior aside), so the one lever of
+the gym carries both estimates:
+
+    κ_{t+1} = clip(θ̂_Q / θ̂_R, κ_min, κ_max).
+
+The κ-filter's covariance is that filter's over ``θ_R``: in the truth's scale ``P = θ̂_R P_f``.
+
+Statistics of one epoch ``k`` (the expectations under the filter's Gaussian posterior; ``Φ = I``
+so ``P⁻_k = P_{k−1} + Q_k``, ``Q_k = κ Q₀_k`` the filter's, ``Δx̂_k = x̂_k − x̂_{k−1}``):
+
+* process noise, the lag-one smoothed ``w_k = x_k − x_{k−1}``: with ``G_k = Q_k (P⁻_k)⁻¹``
+  (``Cov(w, x_k) = Q_k``; ``z_k`` sees ``x_k`` only),
+
+      E[w wᵀ | z_{1:k}] = θ̂_R (Q_k − G_k Q_k + G_k P_k G_kᵀ) + G_k Δx̂_k Δx̂_kᵀ G_kᵀ,
+      s_Q,k = Σ_i E[w wᵀ]_ii / Q₀_k,ii                      (its mean is 4 θ_Q under the model)
+
+  always ≥ 0, unlike Sage–Husa's ``Δx̂Δx̂ᵀ + P_k − P_{k−1}`` (:mod:`.sage_husa`); while ``P ≫ Q``
+  it stays at the filter's own ``Q`` and moves only as the innovations carry evidence;
+* measurement noise, the post-fit residual with ``H_k = ∂h/∂x`` at ``x̂_k``,
+
+      s_R,k = ((z_k − h(x̂_k))² + θ̂_R H_k P_k H_kᵀ) / R₀(x̂_{k−1})   (mean θ_R, linear model)
+
+  (``R₀`` at the predicted state, where the filter evaluates it).
+
+The scales' posteriors are updated once per decision period from the period's epochs, with a
+forgetting factor ``ρ = 2^(−1/h)`` per period (half-life ``h`` periods, Särkkä & Nummenmaa's
+``α ← ρ α``, ``β ← ρ β``):
+
+    α_Q ← ρ α_Q + 2 n_t,   β_Q ← ρ β_Q + ½ Σ_k s_Q,k        (4 states: n/2 = 2 per epoch)
+    α_R ← ρ α_R + ½ n_t,   β_R ← ρ β_R + ½ Σ_k s_R,k        (n_t epochs run in the period)
+
+from priors worth one period of epochs ``P``: ``α_Q = 2P``, ``β_Q = 2P κ_0``, ``α_R = P/2``,
+``β_R = P/2`` (θ_Q at the start κ_0, θ_R at the assumed 1). One update per period is one
+fixed-point (EM) iteration of the VB scheme per period, the filter's κ held inside it as every
+method and policy of the gym holds it: the statistics use the κ and ``θ̂_R`` that ran.
+``adapt`` chooses the scales adapted: ``"q"`` (``θ̂_R = 1``), ``"r"`` (``θ̂_Q = κ_0``: the
+R-only VB of Särkkä & Nummenmaa on this lever), ``"qr"`` both, ``"none"`` the constant κ_0
+(so the tuned rule nests every constant κ). :func:`tune_on` picks the settings from a grid
+of 176 points on tuning episodes; the filter is the compiled UKF of the environments
+(:class:`~qkf.redundant_gyros.nis_adaptive.EpisodeBatch` with ``keep_cov``).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from qkf.redundant_gyros.nis_adaptive import EpisodeBatch, grid_minimum
+from qkf.redundant_gyros.ukf import UkfSetup
+
+Adapt = Literal["none", "q", "r", "qr"]
+ADAPTS: tuple[Adapt, ...] = ("q", "r", "qr")
+"""The adapted scales of the tuning grid (``"none"`` once per start)."""
+HALF_LIVES = (1.0, 3.0, 10.0, 30.0, float("inf"))
+"""The tuning grid's half-lives of the scales' posteriors, decision periods (``inf``: no
+forgetting, the levels held for the episode); with the action set's κ (11) as starts and the
+three ``ADAPTS``, plus the 11 constants: 176 points."""
+
+
+@dataclass(frozen=True)
+class VbRule:
+    """The rule's settings: the scales adapted (``adapt``), the half-life of their posteriors
+    (``halflife``, decision periods; ``inf``: no forgetting), the start ``kappa0``."""
+
+    adapt: Adapt
+    halflife: float
+    kappa0: float
+
+
+def measurement_terms(
+    setup: UkfSetup, x: np.ndarray, rate: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``h(x)`` (...,) deg/s, its Jacobian ``H`` (..., 4) and ``R₀(x)`` (...,) (deg/s)² of the
+    calibration UKF's measurement (:mod:`~qkf.redundant_gyros.ukf`) at states ``x`` (..., 4)
+    with triad rates ``rate`` (..., 3), vectorised."""
+    b, lam, du, dv = (x[..., i] for i in range(4))
+    w_bar = setup.w - du[..., None] * setup.u - dv[..., None] * setup.v  # (..., 3)
+    w_rate = np.einsum("...m,...m->...", w_bar, rate)
+    h = (1.0 - lam) * w_rate - b
+    jac = np.stack(
+        [
+            -np.ones_like(b),
+            -w_rate,
+            -(1.0 - lam) * (rate @ setup.u),
+            -(1.0 - lam) * (rate @ setup.v),
+        ],
+        axis=-1,
+    )
+    through = ((1.0 - lam)[..., None] * w_bar @ setup.triad_inv) * setup.triad_noise
+    r0 = setup.noise**2 + np.sum(through * through, axis=-1)
+    return h, jac, r0
+
+
+def process_statistic(
+    est: np.ndarray,
+    cov: np.ndarray,
+    x_prev: np.ndarray,
+    p_prev: np.ndarray,
+    q_step: np.ndarray,
+    kappa: np.ndarray,
+    theta_r: np.ndarray,
+) -> np.ndarray:
+    """``s_Q`` (n, P) of each epoch of a period (module docstring), NaN where not run.
+
+    ``est`` (n, P, 4), ``cov`` (n, P, 4, 4): the estimate and updated covariance per epoch (NaN
+    where not run); ``x_prev`` (n, 4), ``p_prev`` (n, 4, 4): before the period's first epoch;
+    ``q_step`` (n, P, 4): ``Q₀_k,ii = q²_i Δt_k``; ``kappa`` (n,) the κ the period ran with;
+    ``theta_r`` (n,) the ``θ̂_R`` it ran with."""
+    x_before = np.concatenate([x_prev[:, None, :], est[:, :-1, :]], axis=1)  # x̂_{k−1}
+    p_before = np.concatenate([p_prev[:, None, :, :], cov[:, :-1, :, :]], axis=1)  # P_{k−1}
+    q = kappa[:, None, None] * q_step  # (n, P, 4): diag of Q_k
+    ran = _ran(est, cov)
+    eye = np.eye(4)
+    # P⁻ of the epochs not run: the identity, so that the solve below stays defined
+    p_minus = np.where(ran[:, :, None, None], p_before + q[..., None] * eye, eye)
+    g = np.swapaxes(np.linalg.solve(p_minus, q[..., None] * eye), -1, -2)  # G = Q (P⁻)⁻¹
+    dx = np.where(ran[:, :, None], est - x_before, 0.0)
+    gdx = np.einsum("...ij,...j->...i", g, dx)
+    p_k = np.where(ran[:, :, None, None], cov, 0.0)
+    gpg = np.einsum("...ij,...jl,...il->...i", g, p_k, g)  # diag of G P_k Gᵀ
+    g_diag = np.diagonal(g, axis1=2, axis2=3)
+    smoothed = theta_r[:, None, None] * (q - g_diag * q + gpg) + gdx * gdx  # diag of E[w wᵀ]
+    return np.where(ran, np.sum(smoothed / q_step, axis=2), np.nan)
+
+
+def measurement_statistic(
+    setup: UkfSetup,
+    est: np.ndarray,
+    cov: np.ndarray,
+    x_prev: np.ndarray,
+    theta_r: np.ndarray,
+    z: np.ndarray,
+    rate: np.ndarray,
+) -> np.ndarray:
+    """``s_R`` (n, P) of each epoch of a period (module docstring), NaN where not run:
+    ``est``, ``cov``, ``x_prev``, ``theta_r`` as :func:`process_statistic`'s, ``z`` (n, P)
+    the calibrated gyro's readings and ``rate`` (n, P, 3) the triad rates (deg/s)."""
+    ran = _ran(est, cov)
+    x_k = np.where(ran[:, :, None], est, 0.0)
+    x_before = np.concatenate([x_prev[:, None, :], x_k[:, :-1, :]], axis=1)  # x̂_{k−1}
+    h, jac, _ = measurement_terms(setup, x_k, rate)
+    _, _, r0 = measurement_terms(setup, x_before, rate)
+    p_k = np.where(ran[:, :, None, None], cov, 0.0)
+    hph = np.einsum("...i,...ij,...j->...", jac, p_k, jac)
+    return np.where(ran, ((z - h) ** 2 + theta_r[:, None] * hph) / r0, np.nan)
+
+
+def _ran(est: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(n, P): the epochs run (finite estimate and covariance)."""
+    return np.isfinite(est).all(axis=2) & np.isfinite(cov).all(axis=(2, 3))
+
+
+def run_rule_on(b: EpisodeBatch, rule: VbRule) -> np.ndarray:
+    """``J`` per episode of the rule on episodes loaded into ``b`` (its UKF keeping each
+    epoch's covariance and estimate: ``EpisodeBatch.of_episodes(..., keep_cov=True)``);
+    ``inf`` where the filter fails."""
+    return run_rule_traced(b, rule)[0]
+
+
+def run_rule_traced(b: EpisodeBatch, rule: VbRule) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`run_rule_on`, and the scale estimates ``θ̂_Q``, ``θ̂_R`` (n, T) after each of the
+    T decision periods."""
+    ukf = b.ukf
+    if not ukf.keep_cov:
+        raise ValueError("the VB rule needs the epochs' covariances (keep_cov=True)")
+    ukf.restart(np.arange(ukf.n))
+    lo, hi = b.kappa_range()
+    q2 = ukf.setup.q_sd**2  # the nominal process noise per second (κ = 1)
+    dt = ukf.sampler.dt
+    per = float(ukf.period)
+    alpha_q, beta_q = np.full(ukf.n, 2.0 * per), np.full(ukf.n, 2.0 * per * rule.kappa0)
+    alpha_r, beta_r = np.full(ukf.n, 0.5 * per), np.full(ukf.n, 0.5 * per)
+    rho = 2.0 ** (-1.0 / rule.halflife)
+    kappa = np.full(ukf.n, rule.kappa0)
+    theta_q, theta_r = kappa.copy(), np.ones(ukf.n)
+    total = np.zeros(ukf.n)
+    n_periods = -(-ukf.n_steps // ukf.period)
+    trace_q, trace_r = np.empty((ukf.n, n_periods)), np.empty((ukf.n, n_periods))
+    rows = np.arange(ukf.n)[:, None]
+    for t in range(n_periods):
+        x_prev, p_prev = ukf.x.copy(), ukf.p.copy()
+        k0, _ = ukf.advance(kappa)
+        total += ukf.settled_square(k0, b.settled)
+        if rule.adapt != "none":
+            epoch = np.minimum(k0[:, None] + np.arange(ukf.period)[None, :], ukf.n_steps - 1)
+            q_step = q2[None, None, :] * dt[epoch][:, :, None]
+            s_q = process_statistic(ukf.est, ukf.cov, x_prev, p_prev, q_step, kappa, theta_r)
+            s_r = measurement_statistic(
+                ukf.setup, ukf.est, ukf.cov, x_prev, theta_r, ukf.z[rows, epoch],
+                ukf.rate[rows, epoch],
+            )  # fmt: skip
+            ran = np.isfinite(s_q)
+            n_run = ran.sum(axis=1)
+            if "q" in rule.adapt:
+                alpha_q = rho * alpha_q + 2.0 * n_run
+                beta_q = rho * beta_q + 0.5 * np.where(ran, s_q, 0.0).sum(axis=1)
+                theta_q = beta_q / alpha_q
+            if "r" in rule.adapt:
+                alpha_r = rho * alpha_r + 0.5 * n_run
+                beta_r = rho * beta_r + 0.5 * np.where(ran, s_r, 0.0).sum(axis=1)
+                theta_r = beta_r / alpha_r
+            kappa = np.clip(theta_q / theta_r, lo, hi)
+        trace_q[:, t], trace_r[:, t] = theta_q, theta_r
+    return b.criterion(total), trace_q, trace_r
+
+
+def tune_on(batch: EpisodeBatch) -> tuple[VbRule, float]:
+    """The grid point (the constants, then :data:`ADAPTS` × :data:`HALF_LIVES` × the action
+    set as starts) with the lowest mean ``J`` over the episodes of ``batch``, and that mean
+    (the first such point on ties: a constant before an adapting rule that equals it)."""
+    kappas = [float(k) for k in np.asarray(batch.cfg.environment.actions.values(), dtype=float)]
+    constants = (VbRule("none", 1.0, k0) for k0 in kappas)
+    adapting = (
+        VbRule(adapt, h, k0) for adapt, h, k0 in itertools.product(ADAPTS, HALF_LIVES, kappas)
+    )
+    rules = itertools.chain(constants, adapting)
+    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
+
+
+__all__ = [
+    "ADAPTS",
+    "HALF_LIVES",
+    "VbRule",
+    "measurement_statistic",
+    "measurement_terms",
+    "process_statistic",
+    "run_rule_on",
+    "run_rule_traced",
+    "tune_on",
+]
