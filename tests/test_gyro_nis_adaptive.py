@@ -12,6 +12,7 @@ from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros.ukf import CalibrationUKF
+from tests.gyro_rules import assert_constant_kappa
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -50,13 +51,7 @@ def test_rule_follows_its_equations(rule: na.NisRule) -> None:
 def test_a_rule_without_gain_is_the_constant_kappa() -> None:
     cfg = load_config(FAMILY, SHORT)
     for k0 in (0.01, 1.0, 100.0):
-        j = na.run_rule(cfg, SEEDS, na.NisRule(0.0, 3.0, k0))
-        for seed, value in zip(SEEDS, j, strict=True):
-            ep = hs.episode(cfg, seed)
-            ukf = hs.CompiledUKF(ep)
-            x, p = ukf.prior()
-            const = ukf.score(ukf.run(x, p, np.full(ep.n_epochs, k0), 0, ep.n_epochs))
-            assert value == pytest.approx(const, rel=1e-12)
+        assert_constant_kappa(cfg, SEEDS, na.run_rule(cfg, SEEDS, na.NisRule(0.0, 3.0, k0)), k0)
 
 
 def test_tuning_grid_has_the_budget_and_picks_its_best() -> None:

@@ -13,8 +13,8 @@ from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros import sage_husa as sh
-from qkf.redundant_gyros.methods import GYRO_METHODS
 from qkf.redundant_gyros.ukf import CalibrationUKF
+from tests.gyro_rules import assert_constant_kappa, assert_tuning_nests_the_constants
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -97,13 +97,7 @@ def test_a_rule_that_never_adapts_is_the_constant_kappa() -> None:
     cfg = load_config(FAMILY, SHORT)
     batch = na.EpisodeBatch.of(cfg, SEEDS, keep_cov=True)
     for rule in (sh.SageHusaRule(1.0, 0.1), sh.SageHusaRule(0.5, 10.0, warm_up=10**6)):
-        j = sh.run_rule_on(batch, rule)
-        for seed, value in zip(SEEDS, j, strict=True):
-            ep = hs.episode(cfg, seed)
-            ukf = hs.CompiledUKF(ep)
-            x, p = ukf.prior()
-            k = np.full(ep.n_epochs, rule.kappa0)
-            assert value == pytest.approx(ukf.score(ukf.run(x, p, k, 0, ep.n_epochs)), rel=1e-12)
+        assert_constant_kappa(cfg, SEEDS, sh.run_rule_on(batch, rule), rule.kappa0)
     with pytest.raises(ValueError, match="keep_cov"):
         sh.run_rule_on(na.EpisodeBatch.of(cfg, SEEDS), sh.SageHusaRule(0.9, 1.0))
 
@@ -112,8 +106,4 @@ def test_the_tuned_rule_is_never_worse_than_the_best_constant_on_its_tuning_epis
     cfg = load_config(FAMILY, SHORT)
     tuning = [hs.episode(cfg, s) for s in range(1_000_000, 1_000_004)]
     rule, score = sh.tune_on(na.EpisodeBatch.of_episodes(cfg, tuning, keep_cov=True))
-    constant = GYRO_METHODS["constant"](cfg, tuning, tuning)
-    assert score <= float(np.mean(constant)) * (1 + 1e-12)
-    tuned = GYRO_METHODS["sage-husa"](cfg, tuning, tuning)  # judged on its tuning episodes
-    assert float(np.mean(tuned)) == pytest.approx(score, rel=1e-12)
-    assert rule.kappa0 in np.asarray(cfg.environment.actions.values())
+    assert_tuning_nests_the_constants(cfg, tuning, score, rule.kappa0, "sage-husa")

@@ -14,8 +14,8 @@ from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros import vb_noise as vb
-from qkf.redundant_gyros.methods import GYRO_METHODS
 from qkf.redundant_gyros.ukf import CalibrationUKF, measurement, measurement_variance
+from tests.gyro_rules import assert_constant_kappa, assert_tuning_nests_the_constants
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -189,13 +189,7 @@ def test_a_rule_that_never_adapts_is_the_constant_kappa() -> None:
     cfg = load_config(FAMILY, SHORT)
     batch = na.EpisodeBatch.of(cfg, SEEDS, keep_cov=True)
     for k0 in (0.01, 6.309573444801936):
-        j = vb.run_rule_on(batch, vb.VbRule("none", 3.0, k0))
-        for seed, value in zip(SEEDS, j, strict=True):
-            ep = hs.episode(cfg, seed)
-            ukf = hs.CompiledUKF(ep)
-            x, p = ukf.prior()
-            const = ukf.score(ukf.run(x, p, np.full(ep.n_epochs, k0), 0, ep.n_epochs))
-            assert value == pytest.approx(const, rel=1e-12)
+        assert_constant_kappa(cfg, SEEDS, vb.run_rule_on(batch, vb.VbRule("none", 3.0, k0)), k0)
     with pytest.raises(ValueError, match="keep_cov"):
         vb.run_rule_on(na.EpisodeBatch.of(cfg, SEEDS), vb.VbRule("r", 3.0, 1.0))
 
@@ -204,8 +198,4 @@ def test_the_tuned_rule_is_never_worse_than_the_best_constant_on_its_tuning_epis
     cfg = load_config(FAMILY, SHORT)
     tuning = [hs.episode(cfg, s) for s in range(1_000_000, 1_000_004)]
     rule, score = vb.tune_on(na.EpisodeBatch.of_episodes(cfg, tuning, keep_cov=True))
-    constant = GYRO_METHODS["constant"](cfg, tuning, tuning)
-    assert score <= float(np.mean(constant)) * (1 + 1e-12)
-    tuned = GYRO_METHODS["vb-noise"](cfg, tuning, tuning)  # judged on its tuning episodes
-    assert float(np.mean(tuned)) == pytest.approx(score, rel=1e-12)
-    assert rule.kappa0 in np.asarray(cfg.environment.actions.values())
+    assert_tuning_nests_the_constants(cfg, tuning, score, rule.kappa0, "vb-noise")

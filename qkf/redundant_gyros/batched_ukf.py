@@ -74,6 +74,16 @@ class BatchedUKF:
         self.k = k1
         return k0, k1 - k0
 
+    def period_epochs(self, k0: np.ndarray) -> np.ndarray:
+        """The epochs (n, period) of the period that started at ``k0`` (n,), the episode's last
+        epoch repeated past its end (where ``err``, ``cov`` and ``est`` are NaN)."""
+        return np.minimum(k0[:, None] + np.arange(self.period)[None, :], self.n_steps - 1)
+
+    def nominal_process_noise(self, epochs: np.ndarray) -> np.ndarray:
+        """``Q₀_k,ii = q²_i Δt_k`` (..., 4) at ``epochs`` (...): the process noise per epoch
+        at κ = 1 (the UKF's own, :mod:`~qkf.redundant_gyros.ukf`)."""
+        return np.asarray(self.setup.q_sd**2 * self.sampler.dt[epochs][..., None])
+
     def settled_square(self, k0: np.ndarray, settled: np.ndarray) -> np.ndarray:
         """``Σ ‖(x̂ − x)/σ₀‖²`` (n,) over the last period's epochs from ``settled`` (n,) on,
         the period having started at ``k0`` (n,): a term of the hindsight's ``J``."""

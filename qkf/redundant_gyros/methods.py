@@ -44,6 +44,7 @@ distribution the entry-point group ``qkf.gyro_methods``.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -52,6 +53,8 @@ from qkf.core.registry import Registry, RegistryError
 from qkf.redundant_gyros import clock, nis_adaptive, sage_husa, vb_noise
 from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros.config import GyrosConfig
+
+R = TypeVar("R")
 
 GyroMethod = Callable[[GyrosConfig, Sequence[hs.Episode], Sequence[hs.Episode]], np.ndarray]
 """``(cfg, judged episodes, tuning episodes) → J`` per judged episode."""
@@ -101,9 +104,7 @@ def run_sage_husa(
     cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
 ) -> np.ndarray:
     """The Sage–Husa κ of :mod:`.sage_husa`'s grid best over ``tuning``."""
-    batch = nis_adaptive.EpisodeBatch.of_episodes
-    rule, _ = sage_husa.tune_on(batch(cfg, tuning, keep_cov=True))
-    return sage_husa.run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
+    return _tuned_covariance_rule(cfg, episodes, tuning, sage_husa.tune_on, sage_husa.run_rule_on)
 
 
 @GYRO_METHODS.register("vb-noise")
@@ -111,9 +112,21 @@ def run_vb_noise(
     cfg: GyrosConfig, episodes: Sequence[hs.Episode], tuning: Sequence[hs.Episode]
 ) -> np.ndarray:
     """The variational-Bayes noise scales of :mod:`.vb_noise`'s grid best over ``tuning``."""
+    return _tuned_covariance_rule(cfg, episodes, tuning, vb_noise.tune_on, vb_noise.run_rule_on)
+
+
+def _tuned_covariance_rule(
+    cfg: GyrosConfig,
+    episodes: Sequence[hs.Episode],
+    tuning: Sequence[hs.Episode],
+    tune_on: Callable[[nis_adaptive.EpisodeBatch], tuple[R, float]],
+    run_rule_on: Callable[[nis_adaptive.EpisodeBatch, R], np.ndarray],
+) -> np.ndarray:
+    """``J`` per judged episode of a rule that reads each epoch's covariance (the UKFs keep
+    it), tuned by ``tune_on`` on the ``tuning`` episodes and run by ``run_rule_on``."""
     batch = nis_adaptive.EpisodeBatch.of_episodes
-    rule, _ = vb_noise.tune_on(batch(cfg, tuning, keep_cov=True))
-    return vb_noise.run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
+    rule, _ = tune_on(batch(cfg, tuning, keep_cov=True))
+    return run_rule_on(batch(cfg, episodes, keep_cov=True), rule)
 
 
 @GYRO_METHODS.register("level-informed")

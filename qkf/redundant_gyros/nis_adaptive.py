@@ -79,10 +79,29 @@ class EpisodeBatch:
             ukf.load(row, e.inputs)
         return cls(cfg, ukf, np.array([e.settled_from for e in eps]))
 
+    def restart_for_covariances(self, rule: str) -> None:
+        """Every filter back to its prior, for a ``rule`` that reads each epoch's covariance
+        and estimate: ``ValueError`` naming it if the UKF does not keep them (``keep_cov``)."""
+        if not self.ukf.keep_cov:
+            raise ValueError(f"the {rule} rule needs the epochs' covariances (keep_cov=True)")
+        self.ukf.restart(np.arange(self.ukf.n))
+
+    def actions(self) -> list[float]:
+        """The κ of the action set, in its order: the starts of the tuning grids."""
+        return [float(k) for k in np.asarray(self.cfg.environment.actions.values(), dtype=float)]
+
     def kappa_range(self) -> tuple[float, float]:
         """The smallest and largest κ of the action set: where the adaptive rules clip κ."""
-        kappas = np.asarray(self.cfg.environment.actions.values(), dtype=float)
-        return float(kappas.min()), float(kappas.max())
+        kappas = self.actions()
+        return min(kappas), max(kappas)
+
+    def best_rule(
+        self, rules: Iterable[T], run: Callable[[EpisodeBatch, T], np.ndarray]
+    ) -> tuple[T, float]:
+        """The rule of ``rules`` with the lowest mean ``J`` over these episodes when ``run``
+        (``run(batch, rule)``: ``J`` per episode), and that mean (:func:`grid_minimum`): the
+        tuning of the grid-tuned gyro rules."""
+        return grid_minimum(rules, lambda rule: float(np.mean(run(self, rule))))
 
     def criterion(self, total: np.ndarray) -> np.ndarray:
         """``J`` per episode (n,) from ``total`` (n,), the sum over the episodes of
@@ -126,9 +145,8 @@ def tune(cfg: GyrosConfig, seeds: Sequence[int]) -> tuple[NisRule, float]:
 
 def tune_on(batch: EpisodeBatch) -> tuple[NisRule, float]:
     """:func:`tune` on episodes drawn before."""
-    kappas = np.asarray(batch.cfg.environment.actions.values(), dtype=float)
-    rules = (NisRule(g, h, float(k0)) for g, h, k0 in itertools.product(GAINS, HALF_LIVES, kappas))
-    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
+    grid = itertools.product(GAINS, HALF_LIVES, batch.actions())
+    return batch.best_rule((NisRule(g, h, k0) for g, h, k0 in grid), run_rule_on)
 
 
 def grid_minimum(points: Iterable[T], score: Callable[[T], float]) -> tuple[T, float]:

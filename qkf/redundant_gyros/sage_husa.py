@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qkf.redundant_gyros.nis_adaptive import EpisodeBatch, grid_minimum
+from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
 
 FORGETTING = (0.5, 0.8, 0.9, 0.95, 0.98, 1.0)
 """The tuning grid's forgetting factors ``β`` (1: the constant ``κ_0``)."""
@@ -82,20 +82,15 @@ def run_rule_on(b: EpisodeBatch, rule: SageHusaRule) -> np.ndarray:
     epoch's covariance and estimate: ``EpisodeBatch.of_episodes(..., keep_cov=True)``);
     ``inf`` where the filter fails."""
     ukf = b.ukf
-    if not ukf.keep_cov:
-        raise ValueError("the Sage–Husa rule needs the epochs' covariances (keep_cov=True)")
-    ukf.restart(np.arange(ukf.n))
+    b.restart_for_covariances("Sage–Husa")
     lo, hi = b.kappa_range()
-    q2 = ukf.setup.q_sd**2  # the nominal process noise per second (κ = 1)
-    dt = ukf.sampler.dt
     kappa = np.full(ukf.n, rule.kappa0)
     total = np.zeros(ukf.n)
     for t in range(-(-ukf.n_steps // ukf.period)):
         x_prev, p_prev = ukf.x.copy(), ukf.p.copy()
         k0, _ = ukf.advance(kappa)
         total += ukf.settled_square(k0, b.settled)
-        epoch = np.minimum(k0[:, None] + np.arange(ukf.period)[None, :], ukf.n_steps - 1)
-        q_step = q2[None, None, :] * dt[epoch][:, :, None]
+        q_step = ukf.nominal_process_noise(ukf.period_epochs(k0))
         s = t - rule.warm_up
         if s < 0:  # warm-up: κ_0 held
             continue
@@ -110,10 +105,9 @@ def tune_on(batch: EpisodeBatch) -> tuple[SageHusaRule, float]:
     """The grid point (:data:`FORGETTING` × the action set as starts × :data:`WARM_UPS`) with
     the lowest mean ``J`` over the episodes of ``batch``, and that mean (the first such point
     on ties: ``β = 1`` gives one result whatever the warm-up)."""
-    kappas = np.asarray(batch.cfg.environment.actions.values(), dtype=float)
-    grid = itertools.product(FORGETTING, kappas, WARM_UPS)
-    rules = (SageHusaRule(float(beta), float(k0), int(warm)) for beta, k0, warm in grid)
-    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
+    grid = itertools.product(FORGETTING, batch.actions(), WARM_UPS)
+    rules = (SageHusaRule(float(beta), k0, int(warm)) for beta, k0, warm in grid)
+    return batch.best_rule(rules, run_rule_on)
 
 
 __all__ = [

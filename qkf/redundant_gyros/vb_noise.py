@@ -58,7 +58,7 @@ from typing import Literal
 
 import numpy as np
 
-from qkf.redundant_gyros.nis_adaptive import EpisodeBatch, grid_minimum
+from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
 from qkf.redundant_gyros.ukf import UkfSetup
 
 Adapt = Literal["none", "q", "r", "qr"]
@@ -174,12 +174,8 @@ def run_rule_traced(b: EpisodeBatch, rule: VbRule) -> tuple[np.ndarray, np.ndarr
     """:func:`run_rule_on`, and the scale estimates ``θ̂_Q``, ``θ̂_R`` (n, T) after each of the
     T decision periods."""
     ukf = b.ukf
-    if not ukf.keep_cov:
-        raise ValueError("the VB rule needs the epochs' covariances (keep_cov=True)")
-    ukf.restart(np.arange(ukf.n))
+    b.restart_for_covariances("VB")
     lo, hi = b.kappa_range()
-    q2 = ukf.setup.q_sd**2  # the nominal process noise per second (κ = 1)
-    dt = ukf.sampler.dt
     per = float(ukf.period)
     alpha_q, beta_q = np.full(ukf.n, 2.0 * per), np.full(ukf.n, 2.0 * per * rule.kappa0)
     alpha_r, beta_r = np.full(ukf.n, 0.5 * per), np.full(ukf.n, 0.5 * per)
@@ -195,8 +191,8 @@ def run_rule_traced(b: EpisodeBatch, rule: VbRule) -> tuple[np.ndarray, np.ndarr
         k0, _ = ukf.advance(kappa)
         total += ukf.settled_square(k0, b.settled)
         if rule.adapt != "none":
-            epoch = np.minimum(k0[:, None] + np.arange(ukf.period)[None, :], ukf.n_steps - 1)
-            q_step = q2[None, None, :] * dt[epoch][:, :, None]
+            epoch = ukf.period_epochs(k0)
+            q_step = ukf.nominal_process_noise(epoch)
             s_q = process_statistic(ukf.est, ukf.cov, x_prev, p_prev, q_step, kappa, theta_r)
             s_r = measurement_statistic(
                 ukf.setup, ukf.est, ukf.cov, x_prev, theta_r, ukf.z[rows, epoch],
@@ -221,13 +217,11 @@ def tune_on(batch: EpisodeBatch) -> tuple[VbRule, float]:
     """The grid point (the constants, then :data:`ADAPTS` × :data:`HALF_LIVES` × the action
     set as starts) with the lowest mean ``J`` over the episodes of ``batch``, and that mean
     (the first such point on ties: a constant before an adapting rule that equals it)."""
-    kappas = [float(k) for k in np.asarray(batch.cfg.environment.actions.values(), dtype=float)]
+    kappas = batch.actions()
     constants = (VbRule("none", 1.0, k0) for k0 in kappas)
-    adapting = (
-        VbRule(adapt, h, k0) for adapt, h, k0 in itertools.product(ADAPTS, HALF_LIVES, kappas)
-    )
-    rules = itertools.chain(constants, adapting)
-    return grid_minimum(rules, lambda rule: float(np.mean(run_rule_on(batch, rule))))
+    grid = itertools.product(ADAPTS, HALF_LIVES, kappas)
+    adapting = (VbRule(adapt, h, k0) for adapt, h, k0 in grid)
+    return batch.best_rule(itertools.chain(constants, adapting), run_rule_on)
 
 
 __all__ = [
