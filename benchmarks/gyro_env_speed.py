@@ -9,9 +9,10 @@ agent's and the κ = 1 copy of the likelihood gain) stepped over one decision pe
 epochs), one episode at a time, with an episode drawn (``EpisodeSampler.draw``) every
 ``episode_steps`` steps. Measured:
 
-* the single environment, ``gym.make(id)``, v1 (with the κ = 1 copy) and v2 (without):
-  env-steps/s and the ratio to the reference (goals ≥ 3,000 env-steps/s and ≥ 100 ×);
-* the batched Gymnasium vector environment, ``gym.make_vec(id, num_envs=N)``, v1 and v2:
+* the single environment, ``gym.make(id)``, v1 (with the κ = 1 copy), v2 (without) and v4
+  (with the VB noise scale, whose statistics keep each epoch's covariance): env-steps/s and
+  the ratio to the reference (goals ≥ 3,000 env-steps/s and ≥ 100 ×);
+* the batched Gymnasium vector environment, ``gym.make_vec(id, num_envs=N)``, v1, v2 and v4:
   env-steps/s summed over its N episodes (goal ≥ 30,000 with 64).
 
 Random discrete actions; resets (new episodes) are part of the time. Each figure is the best of
@@ -110,11 +111,11 @@ def main() -> None:
     args = ap.parse_args()
     ref = filterpy_reference(args.seconds)
     print(f"reference: filterpy v1 loop (two UKFs per epoch)   {ref:10.1f} env-steps/s")
-    for v in ("v1", "v2"):
+    for v in ("v1", "v2", "v4"):
         env_id = f"qkf/RedundantGyroCalibration-{v}"
         single = single_rate(env_id, args.seconds)
         print(f"{env_id} single          {single:10.0f} env-steps/s  {single / ref:7.0f} × ref")
-    for v in ("v1", "v2"):
+    for v in ("v1", "v2", "v4"):
         env_id = f"qkf/RedundantGyroCalibration-{v}"
         batched = batched_rate(env_id, args.envs, args.seconds)
         rate = f"{batched:10.0f} env-steps/s  {batched / ref:7.0f} × ref"

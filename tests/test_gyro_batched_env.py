@@ -15,7 +15,13 @@ import pytest
 
 import envs  # registers the ids
 from envs.common.actions import ActionMap
-from envs.redundant_gyros import GYRO_ENV_ID, GYRO_ENV_ID_V1, GYRO_ENV_ID_V2, GYRO_ENV_ID_V3
+from envs.redundant_gyros import (
+    GYRO_ENV_ID,
+    GYRO_ENV_ID_V1,
+    GYRO_ENV_ID_V2,
+    GYRO_ENV_ID_V3,
+    GYRO_ENV_ID_V4,
+)
 from envs.redundant_gyros.episodes import GyroEpisodes
 from envs.redundant_gyros.observations import GYRO_OBSERVATIONS, PART_SIZES
 from envs.redundant_gyros.sb3 import BatchedGyroSB3Env
@@ -25,7 +31,15 @@ from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.geometry import build_unit
 from qkf.redundant_gyros.pipeline import fault_target, setup_for
 from qkf.redundant_gyros.scenario import epochs, simulate
-from qkf.redundant_gyros.ukf import DISPLAY_SCALE, CalibrationUKF, log_likelihood, triad_rate
+from qkf.redundant_gyros.ukf import (
+    DISPLAY_SCALE,
+    CalibrationUKF,
+    UkfSetup,
+    log_likelihood,
+    measurement,
+    measurement_variance,
+    triad_rate,
+)
 from qkf.redundant_gyros.ukf_compiled import SUMS
 
 # 1200 calibrated epochs from t = 0, an onset drawn in [30, 60] s: inside the episode
@@ -49,12 +63,28 @@ def _seed_draw(seed: int) -> int:
 # -- 1. the compiled environment against filterpy --------------------------------------------
 
 
+def _post_fit(setup: UkfSetup, ref: CalibrationUKF, x_before: np.ndarray, z: float,
+              rate: np.ndarray) -> tuple[float, float]:  # fmt: skip
+    """``((z − h(x̂))² / R₀, H P Hᵀ / R₀)`` after one filterpy step, ``R₀`` at the state before
+    it and ``H`` by central differences (exact: ``h`` is linear in each coordinate)."""
+    h_row = np.empty(4)
+    for j in range(4):
+        step = np.zeros(4)
+        step[j] = 1e-3 * setup.p0_sd[j]
+        up, down = measurement(ref.x + step, rate, setup), measurement(ref.x - step, rate, setup)
+        h_row[j] = float(up[0] - down[0]) / (2 * step[j])
+    r0 = measurement_variance(setup, x_before)
+    resid = z - float(measurement(ref.x, rate, setup)[0])
+    return resid**2 / r0, float(h_row @ ref.P @ h_row) / r0
+
+
 @pytest.mark.parametrize(
     ("env_id", "overrides", "seed"),
     [
         (GYRO_ENV_ID_V1, ONSET, 11),  # calibrated from t = 0, an onset inside
         (GYRO_ENV_ID, ["scenario.duration_s=90"], 4),  # five_gyros_s_bias: from the fault on
         (GYRO_ENV_ID_V3, ["scenario.duration_s=120"], 12),  # noise levels; the lag-1 entry
+        (GYRO_ENV_ID_V4, ["scenario.duration_s=120"], 13),  # and the VB noise scale
     ],
 )
 def test_compiled_env_follows_filterpy_with_kappa_changing(
@@ -79,6 +109,7 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
     nominal = CalibrationUKF(setup, float(ep.dt[0]))
     k = 0
     visited = set()
+    alpha = beta = 0.5 * u.period  # the R scale's prior: one period at the assumed noise
     for n in range(u.episode_steps):
         a = SCHEDULE[n % len(SCHEDULE)]
         kappa = float(kappas[a])
@@ -87,9 +118,13 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
         k1 = min(k + u.period, n_epochs)
         ll_agent = ll_nominal = nis = lag1 = 0.0
         r_prev = None
+        theta_before, resid_sum = beta / alpha, 0.0
         for j in range(k, k1):
             z, rate, dt = float(ep.z[j]), ep.rate[j], float(ep.dt[j])
+            x_before = ref.x.copy()
             r = ref.step(z, rate, dt, kappa)
+            resid, hph = _post_fit(setup, ref, x_before, z, rate)
+            resid_sum += resid + theta_before * hph
             rn = nominal.step(z, rate, dt, 1.0)
             assert r.ok and rn.ok
             ll_agent += float(log_likelihood(np.array(r.innovation), np.array(r.variance)))
@@ -99,6 +134,7 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
             if r_prev is not None:
                 lag1 += r_norm * r_prev
             r_prev = r_norm
+        alpha, beta = alpha + 0.5 * (k1 - k), beta + 0.5 * resid_sum
         obs, reward, term, trunc, info = env.step(a)
         assert not term and trunc == (k1 == n_epochs)
         assert info["kappa"] == kappa
@@ -127,6 +163,7 @@ def test_compiled_env_follows_filterpy_with_kappa_changing(
             "time": np.array([k1 / n_epochs]),
             "rate": np.array([np.linalg.norm(ep.rate[k1 - 1])]),
             "kappa": np.array([a / (kappas.size - 1)]),
+            "rscale": np.array([np.log10(beta / alpha)]),
         }
         expected_obs = np.concatenate([want[p] for p in parts])
         gain_tol = 1e-9 * (abs(ll_agent) + abs(ll_nominal)) / steps + 1e-6 * abs(gain)
@@ -207,6 +244,8 @@ SHORT = {
     GYRO_ENV_ID: ["scenario.duration_s=180"],  # five_gyros_s_bias: 1200 epochs from 60 s on
     GYRO_ENV_ID_V1: ONSET,
     GYRO_ENV_ID_V2: ONSET,
+    GYRO_ENV_ID_V3: ["scenario.duration_s=120"],  # gyro_noise_levels from t = 0
+    GYRO_ENV_ID_V4: ["scenario.duration_s=120"],
 }
 
 
@@ -219,7 +258,7 @@ def _single_rows(env_id: str, n: int) -> list[gym.Env[np.ndarray, Any]]:
     return [gym.make(env_id, **_short(env_id)) for _ in range(n)]
 
 
-@pytest.mark.parametrize("env_id", [GYRO_ENV_ID_V1, GYRO_ENV_ID_V2])
+@pytest.mark.parametrize("env_id", [GYRO_ENV_ID_V1, GYRO_ENV_ID_V2, GYRO_ENV_ID_V4])
 def test_single_and_gymnasium_vector_env_agree_bit_for_bit(env_id: str) -> None:
     n, seed = 3, 20
     vec = gym.make_vec(env_id, num_envs=n, **_short(env_id))
@@ -254,10 +293,10 @@ def test_single_and_gymnasium_vector_env_agree_bit_for_bit(env_id: str) -> None:
     assert ends >= 2 * n  # every row went through two episode ends (and restarts)
 
 
-@pytest.mark.parametrize("observation", ["v1", "v2"])
+@pytest.mark.parametrize("observation", ["v1", "v2", "v4"])
 def test_single_and_sb3_vec_env_agree_bit_for_bit(observation: str) -> None:
     n, seed = 3, 33
-    env_id = {"v1": GYRO_ENV_ID_V1, "v2": GYRO_ENV_ID_V2}[observation]
+    env_id = {"v1": GYRO_ENV_ID_V1, "v2": GYRO_ENV_ID_V2, "v4": GYRO_ENV_ID_V4}[observation]
     vec = BatchedGyroSB3Env(n, observation=observation, **_short(env_id))
     length = vec.episodes.episode_steps
     singles = _single_rows(env_id, n)
@@ -285,6 +324,23 @@ def test_single_and_sb3_vec_env_agree_bit_for_bit(observation: str) -> None:
                 assert "terminal_observation" not in infos[i]
             assert np.array_equal(obs_v[i], o), (i, obs_v[i], o)
     assert dones_seen == 2 * n
+
+
+@pytest.mark.parametrize("env_id", [GYRO_ENV_ID_V3, GYRO_ENV_ID_V4])
+def test_an_episode_after_a_reset_is_the_episode_of_a_fresh_env(env_id: str) -> None:
+    """Nothing of an earlier episode carries over (the v4 noise scale's posterior included):
+    after a whole episode and a reset, the steps are those of a new environment reset with the
+    same seed."""
+    used, fresh = gym.make(env_id, **_short(env_id)), gym.make(env_id, **_short(env_id))
+    used.reset(seed=5)
+    done = False
+    while not done:
+        _, _, te, tr, _ = used.step(9)
+        done = te or tr
+    for env in (used, fresh):
+        env.reset(seed=6)
+    for a in (2, 7, 4):
+        np.testing.assert_array_equal(used.step(a)[0], fresh.step(a)[0])
 
 
 # -- 4. the κ = 1 copy only where it is read --------------------------------------------------

@@ -15,6 +15,7 @@ from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros import vb_noise as vb
 from qkf.redundant_gyros.ukf import CalibrationUKF, measurement, measurement_variance
+from tests import vb_noise_numpy as vb_numpy
 from tests.gyro_rules import assert_constant_kappa, assert_tuning_nests_the_constants
 
 FAMILY = "gyro_noise_levels"
@@ -84,15 +85,15 @@ def test_process_statistic_is_the_smoothed_process_noise(theta_r: float) -> None
 
 
 def test_measurement_terms_are_the_filters_model() -> None:
-    """``h``, ``R₀`` against the filter's own functions, ``H`` against central differences
-    (exact up to rounding: ``h`` is linear in each coordinate)."""
+    """The numpy reference's ``h``, ``R₀`` against the filter's own functions, ``H`` against
+    central differences (exact up to rounding: ``h`` is linear in each coordinate)."""
     cfg = load_config(FAMILY, SHORT)
     ep = hs.episode(cfg, SEEDS[0])
     s = ep.setup
     rng = np.random.default_rng(3)
     x = s.x0 + rng.normal(size=(5, 4)) * s.p0_sd
     rate = ep.inputs.rate[rng.integers(0, ep.n_epochs, 5)]
-    h, jac, r0 = vb.measurement_terms(s, x, rate)
+    h, jac, r0 = vb_numpy.measurement_terms(s, x, rate)
     for i in range(5):
         assert h[i] == pytest.approx(measurement(x[i], rate[i], s)[0], rel=1e-12, abs=1e-15)
         assert r0[i] == pytest.approx(measurement_variance(s, x[i]), rel=1e-12)
@@ -101,6 +102,28 @@ def test_measurement_terms_are_the_filters_model() -> None:
             step[j] = 1e-3 * s.p0_sd[j]
             fd = measurement(x[i] + step, rate[i], s) - measurement(x[i] - step, rate[i], s)
             assert jac[i, j] == pytest.approx(fd[0] / (2 * step[j]), rel=1e-6, abs=1e-12)
+
+
+def test_compiled_measurement_statistic_equals_the_numpy_reference() -> None:
+    """Random states and covariances around the prior, epochs not run (NaN) at the end of one
+    row and a whole row not run: the compiled statistic equals the numpy one to 1e-12."""
+    cfg = load_config(FAMILY, SHORT)
+    ep = hs.episode(cfg, SEEDS[0])
+    s = ep.setup
+    rng = np.random.default_rng(8)
+    n, period = 3, 7
+    est = s.x0 + rng.normal(size=(n, period, 4)) * s.p0_sd
+    a = rng.normal(size=(n, period, 4, 4)) * s.p0_sd
+    cov = a @ np.swapaxes(a, -1, -2)
+    x_prev = s.x0 + rng.normal(size=(n, 4)) * s.p0_sd
+    theta = rng.uniform(0.5, 3.0, n)
+    z = rng.normal(size=(n, period)) * 0.01
+    rate = ep.inputs.rate[rng.integers(0, ep.n_epochs, (n, period))]
+    est[1, 4:], cov[1, 4:], est[2], cov[2] = np.nan, np.nan, np.nan, np.nan
+    got = vb.measurement_statistic(s, est, cov, x_prev, theta, z, rate)
+    want = vb_numpy.measurement_statistic(s, est, cov, x_prev, theta, z, rate)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.isnan(got[1, 4:]).all() and np.isnan(got[2]).all() and np.isfinite(got[0]).all()
 
 
 @pytest.mark.parametrize("noise_factor", [1.0, 2.0])

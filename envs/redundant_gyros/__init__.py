@@ -1,11 +1,12 @@
-"""The redundant-gyro environments ``qkf/RedundantGyroCalibration-v0``, ``-v1`` and ``-v2``
+"""The redundant-gyro environments ``qkf/RedundantGyroCalibration-v0`` … ``-v4``
 (docs/redundant_gyros.md, "Environment"): the agent picks the process-noise factor κ of the UKF
 that calibrates one gyro of a redundant skewed unit (:mod:`qkf.redundant_gyros`) every decision
 period. v1 runs on ``five_gyros_onset_drift`` by default (an onset drawn per episode, drifting
 coefficients) and its observation has no elapsed-time entry; v2 also leaves out the likelihood
 gain over a κ = 1 copy (so no copy runs) and rewards with ``oracle`` by default; v3 adds the
 lag-1 correlation of the normalised innovations to v2 and runs on ``gyro_noise_levels`` by
-default; v0 stays as it was.
+default; v4 adds to v3 the variational-Bayes estimate of the white noise's scale (what the
+``vb-noise`` baseline reads); v0 stays as it was.
 
 :mod:`.episodes` steps N episodes through the compiled UKF; :mod:`.env` is the single
 environment (one episode), :mod:`.vector` the batched Gymnasium ``VectorEnv`` (what
@@ -30,6 +31,7 @@ GYRO_ENV_ID = "qkf/RedundantGyroCalibration-v0"
 GYRO_ENV_ID_V1 = "qkf/RedundantGyroCalibration-v1"
 GYRO_ENV_ID_V2 = "qkf/RedundantGyroCalibration-v2"
 GYRO_ENV_ID_V3 = "qkf/RedundantGyroCalibration-v3"
+GYRO_ENV_ID_V4 = "qkf/RedundantGyroCalibration-v4"
 VECTOR_ENTRY_POINT = "envs.redundant_gyros.vector:BatchedGyroCalibrationEnv"
 SB3_VEC_ENV = "envs.redundant_gyros.sb3:BatchedGyroSB3Env"
 
@@ -63,6 +65,11 @@ VERSIONS = {
         "redundant skewed gyros, noise levels unknown to the filter (gyro_noise_levels): v2's "
         "observation with the innovations' lag-1 correlation",
     ),
+    GYRO_ENV_ID_V4: (
+        "v4",
+        "redundant skewed gyros, noise levels unknown to the filter (gyro_noise_levels): v3's "
+        "observation with the VB estimate of the white noise's scale (what vb-noise reads)",
+    ),
 }
 """Each id's observation version and description (one environment class, one per version)."""
 for _env_id, (_observation, _description) in VERSIONS.items():
@@ -88,6 +95,7 @@ __all__ = [
     "GYRO_ENV_ID_V1",
     "GYRO_ENV_ID_V2",
     "GYRO_ENV_ID_V3",
+    "GYRO_ENV_ID_V4",
     "GYRO_REWARDS",
     "OBS_SIZE",
     "OBS_SIZES",

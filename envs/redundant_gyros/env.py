@@ -24,7 +24,7 @@ Arguments: ``scenario`` (gyro preset name, config path or ``GyrosConfig``; ``Non
 version's default), ``action_type`` (``discrete`` | ``continuous``), ``reward`` (a name of
 :data:`~envs.redundant_gyros.rewards.GYRO_REWARDS`; ``None``: ``likelihood``, or ``oracle``
 for v2), ``overrides``
-(``--set`` style), ``period_s``, ``observation`` (``"v0"`` | ``"v1"`` | ``"v2"``), ``render_mode``
+(``--set`` style), ``period_s``, ``observation`` (``"v0"`` … ``"v4"``), ``render_mode``
 (``None`` or ``"rgb_array"``, as the transfer-alignment environment: ``render()`` draws the κ
 chosen so far and, over the four calibrated states, the RMS of the UKF's σ and of the true
 error, both over the prior σ₀).
@@ -56,8 +56,13 @@ Observation ``"v1"`` (8 entries): v0 without the elapsed fraction (entry 6), the
 moved up by one; the NIS (entry 4) jumps at the drawn onset.
 
 Observation ``"v2"`` (7 entries: v1 without the likelihood gain, so no κ = 1 copy of the filter
-runs): ``log10(σ/σ₀)`` of the four states, mean NIS, ``|ω̂_H|``, κ position
-(:mod:`envs.redundant_gyros.observations`).
+runs): ``log10(σ/σ₀)`` of the four states, mean NIS, ``|ω̂_H|``, κ position.
+Observation ``"v3"`` (``qkf/RedundantGyroCalibration-v3``, default scenario
+``gyro_noise_levels``; 8 entries): v2 with the innovations' lag-1 correlation after the NIS.
+Observation ``"v4"`` (``qkf/RedundantGyroCalibration-v4``, default scenario
+``gyro_noise_levels``; 9 entries): v3 with ``log10 θ̂_R`` after the lag-1 entry, the
+variational-Bayes estimate of the white noise's scale over the assumed that the ``vb-noise``
+baseline reads (the table: :mod:`envs.redundant_gyros.observations`).
 
 The filter is the compiled UKF (:mod:`qkf.redundant_gyros.ukf_compiled`, held to filterpy's at
 1e-9 σ₀), stepped by :class:`~envs.redundant_gyros.episodes.GyroEpisodes` with one episode;

@@ -30,12 +30,14 @@ from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.episodes import EpisodeSampler
 from qkf.redundant_gyros.ukf import DISPLAY_SCALE
+from qkf.redundant_gyros.vb_noise import R_HALF_DOF, ScalePosterior, period_measurement_statistic
 
 DEFAULT_SCENARIOS = {
     "v0": "five_gyros_s_bias",
     "v1": "five_gyros_onset_drift",
     "v2": "five_gyros_onset_drift",
     "v3": "gyro_noise_levels",
+    "v4": "gyro_noise_levels",
 }
 """The scenario of each observation version when none is given."""
 
@@ -108,11 +110,14 @@ class GyroEpisodes(BatchedUKF):
             raise ValueError(f"period_s must be positive, got {period!r}")
         self.reward = GYRO_REWARDS[reward]
         steps = max(1, round(period / self.cfg.scenario.dt_s))
-        super().__init__(sampler, n, steps, keep_cov=self.reward.uses_cov)
+        self.observation = GYRO_OBSERVATIONS[observation]
+        keep_cov = self.reward.uses_cov or self.observation.uses_noise_scale
+        super().__init__(sampler, n, steps, keep_cov=keep_cov)
         self.episode_steps = -(-self.n_steps // self.period)
         self.actions = ActionMap(np.asarray(self.cfg.environment.actions.values()), action_type)
         self.action_space: spaces.Space[Any] = self.actions.space
-        self.observation = GYRO_OBSERVATIONS[observation]
+        # θ̂_R of each episode so far (vb_noise: a prior worth one period at the assumed noise)
+        self.noise_scale = ScalePosterior.prior(n, 1.0, float(steps), R_HALF_DOF)
         self.observation_space = observation_box(self.observation.size)
         self.needs_nominal = self.observation.uses_nominal or self.reward.uses_nominal
         kappas = self.actions.kappas
@@ -127,6 +132,7 @@ class GyroEpisodes(BatchedUKF):
         for i, seed in zip(rows, seeds, strict=True):
             self.load(int(i), self.sampler.draw(seed))
         self.restart(rows)
+        self.noise_scale.restart(rows, 1.0, float(self.period))
         obs = np.zeros((rows.size, self.observation.size), dtype=np.float32)
         obs[:, -1] = self.start_position
         return obs
@@ -138,8 +144,14 @@ class GyroEpisodes(BatchedUKF):
     def run(self, kappa: np.ndarray, position: np.ndarray) -> GyroStep:
         """One decision period of every episode with ``kappa`` (N,) (at ``position`` (N,) on
         the action scale, for the observation)."""
+        x_prev = self.x.copy()
         k0, steps = self.advance(kappa, self.needs_nominal)
         k1 = k0 + steps
+        theta_r = np.full(self.n, np.nan)
+        if self.observation.uses_noise_scale:  # vb_noise's R scale, no forgetting
+            before = self.noise_scale.estimate
+            s_r = period_measurement_statistic(self, self.period_epochs(k0), x_prev, before)
+            theta_r = self.noise_scale.update(s_r, 1.0)
         # an episode past its end (the vector env's autoreset steps it before restarting it, and
         # drops what this step says of it) runs no epoch: divide its zero sums by 1, not 0
         per_step = np.maximum(steps, 1)
@@ -172,6 +184,7 @@ class GyroEpisodes(BatchedUKF):
             elapsed=k1 / self.n_steps,
             rate_norm=np.linalg.norm(self.rate[rows, last], axis=1),
             position=np.asarray(position, dtype=float),
+            noise_scale=theta_r,
         )
         obs = self.observation.build(inputs)
         obs[failed] = 0.0

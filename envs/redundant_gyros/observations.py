@@ -6,21 +6,30 @@ no truth) for a whole batch of episodes at once; an entry names the quantities i
 uses them. ``uses_nominal`` says whether it reads the likelihood gain over a κ = 1 copy of the
 filter, which then runs beside the agent's (the only reason that copy exists).
 
-=====  ===================================================  ======  ======  ======  ======
-name   entry                                                  v0      v1      v2      v3
-=====  ===================================================  ======  ======  ======  ======
-sd     ``log10(σ/σ₀)`` of b, λ, δ_u, δ_v (4 entries)         0–3     0–3     0–3     0–3
-nis    mean NIS ``ν²/S`` over the period                     4       4       4       4
-lag1   mean lag-1 product of ``ν/√S`` over the period        –       –       –       5
-gain   log-likelihood gain over a κ = 1 copy, per step       5       5       –       –
-time   elapsed fraction of the episode                       6       –       –       –
-rate   ``|ω̂_H|`` of the healthy triad at the period's end     7       6       5       6
-kappa  κ position in [0, 1] on the action scale              8       7       6       7
-=====  ===================================================  ======  ======  ======  ======
+======  ==================================================  ====  ====  ====  ====  ====
+name    entry                                                v0    v1    v2    v3    v4
+======  ==================================================  ====  ====  ====  ====  ====
+sd      ``log10(σ/σ₀)`` of b, λ, δ_u, δ_v (4 entries)        0–3   0–3   0–3   0–3   0–3
+nis     mean NIS ``ν²/S`` over the period                    4     4     4     4     4
+lag1    mean lag-1 product of ``ν/√S`` over the period       –     –     –     5     5
+rscale  ``log10 θ̂_R``, the measurement-noise scale so far    –     –     –     –     6
+gain    log-likelihood gain over a κ = 1 copy, per step      5     5     –     –     –
+time    elapsed fraction of the episode                      6     –     –     –     –
+rate    ``|ω̂_H|`` of the healthy triad at the period's end    7     6     5     6     7
+kappa   κ position in [0, 1] on the action scale             8     7     6     7     8
+======  ==================================================  ====  ====  ====  ====  ====
 
 ``lag1`` separates the two noise levels the NIS confounds: a white noise above the assumed
 raises the NIS but leaves the normalised innovations white (``lag1`` ≈ 0); coefficients that
 move faster than the filter's process noise make them correlated (``lag1`` > 0).
+
+``rscale`` is what the ``vb-noise`` baseline reads (:mod:`qkf.redundant_gyros.vb_noise`): the
+variational-Bayes estimate of the white noise's scale over the assumed, ``θ̂_R = β/α`` of its
+inverse-Gamma posterior from the episode's start (no forgetting, a prior worth one period at
+1), from the post-fit residuals of every epoch so far. It identifies the white-noise level of
+``gyro_noise_levels`` within a few per cent over an episode; a policy that reads it can do
+what ``vb-noise`` does, and more if its other entries help (``uses_noise_scale``: the UKF then
+keeps each epoch's covariance).
 """
 
 from __future__ import annotations
@@ -46,6 +55,7 @@ class GyroObservationInputs:
     elapsed: np.ndarray  # (N,) elapsed fraction of the episode
     rate_norm: np.ndarray  # (N,) |ω̂_H| at the period's last epoch, deg/s
     position: np.ndarray  # (N,) κ position on the action scale
+    noise_scale: np.ndarray  # (N,) θ̂_R so far (NaN where the version does not read it)
 
 
 def _sd(o: GyroObservationInputs) -> np.ndarray:
@@ -61,9 +71,12 @@ PARTS: dict[str, Callable[[GyroObservationInputs], np.ndarray]] = {
     "time": lambda o: o.elapsed[:, None],
     "rate": lambda o: o.rate_norm[:, None],
     "kappa": lambda o: o.position[:, None],
+    "rscale": lambda o: np.log10(o.noise_scale)[:, None],
 }
 """The quantities an observation is made of, each (N, entries)."""
-PART_SIZES = {"sd": 4, "nis": 1, "lag1": 1, "gain": 1, "time": 1, "rate": 1, "kappa": 1}
+PART_SIZES = {
+    "sd": 4, "nis": 1, "lag1": 1, "gain": 1, "time": 1, "rate": 1, "kappa": 1, "rscale": 1,
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -81,6 +94,11 @@ class GyroObservation:
     def uses_nominal(self) -> bool:
         """Whether it reads the κ = 1 copy's likelihood."""
         return "gain" in self.parts
+
+    @property
+    def uses_noise_scale(self) -> bool:
+        """Whether it reads the VB estimate of the white noise's scale ``θ̂_R``."""
+        return "rscale" in self.parts
 
     def build(self, o: GyroObservationInputs) -> np.ndarray:
         """The observations (N, size), float32, finite and clipped."""
@@ -104,5 +122,12 @@ GYRO_OBSERVATIONS.register(
     "v3",
     GyroObservation(
         ("sd", "nis", "lag1", "rate", "kappa"), "v2 with the innovations' lag-1 correlation"
+    ),
+)
+GYRO_OBSERVATIONS.register(
+    "v4",
+    GyroObservation(
+        ("sd", "nis", "lag1", "rscale", "rate", "kappa"),
+        "v3 with the VB estimate of the white noise's scale",
     ),
 )

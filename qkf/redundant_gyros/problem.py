@@ -40,6 +40,7 @@ ENV_IDS: tuple[str, ...] = (
     "qkf/RedundantGyroCalibration-v1",
     "qkf/RedundantGyroCalibration-v2",
     "qkf/RedundantGyroCalibration-v3",
+    "qkf/RedundantGyroCalibration-v4",
 )
 """The environments of this problem (``envs.redundant_gyros`` registers them)."""
 

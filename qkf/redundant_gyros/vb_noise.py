@@ -58,8 +58,11 @@ from typing import Literal
 
 import numpy as np
 
+from qkf.core.jit import kernel_jit
+from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
 from qkf.redundant_gyros.ukf import UkfSetup
+from qkf.redundant_gyros.ukf_compiled import CompiledSetup
 
 Adapt = Literal["none", "q", "r", "qr"]
 ADAPTS: tuple[Adapt, ...] = ("q", "r", "qr")
@@ -78,30 +81,6 @@ class VbRule:
     adapt: Adapt
     halflife: float
     kappa0: float
-
-
-def measurement_terms(
-    setup: UkfSetup, x: np.ndarray, rate: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``h(x)`` (...,) deg/s, its Jacobian ``H`` (..., 4) and ``R₀(x)`` (...,) (deg/s)² of the
-    calibration UKF's measurement (:mod:`~qkf.redundant_gyros.ukf`) at states ``x`` (..., 4)
-    with triad rates ``rate`` (..., 3), vectorised."""
-    b, lam, du, dv = (x[..., i] for i in range(4))
-    w_bar = setup.w - du[..., None] * setup.u - dv[..., None] * setup.v  # (..., 3)
-    w_rate = np.einsum("...m,...m->...", w_bar, rate)
-    h = (1.0 - lam) * w_rate - b
-    jac = np.stack(
-        [
-            -np.ones_like(b),
-            -w_rate,
-            -(1.0 - lam) * (rate @ setup.u),
-            -(1.0 - lam) * (rate @ setup.v),
-        ],
-        axis=-1,
-    )
-    through = ((1.0 - lam)[..., None] * w_bar @ setup.triad_inv) * setup.triad_noise
-    r0 = setup.noise**2 + np.sum(through * through, axis=-1)
-    return h, jac, r0
 
 
 def process_statistic(
@@ -147,15 +126,131 @@ def measurement_statistic(
 ) -> np.ndarray:
     """``s_R`` (n, P) of each epoch of a period (module docstring), NaN where not run:
     ``est``, ``cov``, ``x_prev``, ``theta_r`` as :func:`process_statistic`'s, ``z`` (n, P)
-    the calibrated gyro's readings and ``rate`` (n, P, 3) the triad rates (deg/s)."""
-    ran = _ran(est, cov)
-    x_k = np.where(ran[:, :, None], est, 0.0)
-    x_before = np.concatenate([x_prev[:, None, :], x_k[:, :-1, :]], axis=1)  # x̂_{k−1}
-    h, jac, _ = measurement_terms(setup, x_k, rate)
-    _, _, r0 = measurement_terms(setup, x_before, rate)
-    p_k = np.where(ran[:, :, None, None], cov, 0.0)
-    hph = np.einsum("...i,...ij,...j->...", jac, p_k, jac)
-    return np.where(ran, ((z - h) ** 2 + theta_r[:, None] * hph) / r0, np.nan)
+    the calibrated gyro's readings and ``rate`` (n, P, 3) the triad rates (deg/s). Compiled
+    (:func:`_post_fit_rows`); its numpy reference is ``tests/vb_noise_numpy.py``."""
+    out = np.empty(z.shape)
+    w, u, v, tinv, tnoise, noise, _ = CompiledSetup.of(setup).geometry
+    _post_fit_rows(est, cov, x_prev, np.asarray(theta_r, dtype=float), z, rate, w, u, v, tinv,
+                   tnoise, noise, out)  # fmt: skip
+    return out
+
+
+@kernel_jit(nrt=True, fastmath=False)
+def _post_fit_rows(
+    est: np.ndarray,
+    cov: np.ndarray,
+    x_prev: np.ndarray,
+    theta_r: np.ndarray,
+    z: np.ndarray,
+    rate: np.ndarray,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """``out[b, i] = ((z − h(x̂_i))² + θ̂_R H P_i Hᵀ) / R₀(x̂_{i−1})`` (module docstring) with
+    ``h(x) = (1 − λ) w̄ᵀ ω̂ − b``, ``H = [−1, −w̄ᵀω̂, −(1 − λ) uᵀω̂, −(1 − λ) vᵀω̂]`` and
+    ``R₀(x) = σ² + ‖(1 − λ) w̄ᵀ G_H⁻¹ diag(s_H)‖²`` (:mod:`~qkf.redundant_gyros.ukf`), NaN
+    where the epoch did not run; serial over the rows (a period is a few thousand epochs)."""
+    jac = np.empty(4)
+    for b in range(est.shape[0]):
+        before = x_prev[b]
+        for i in range(est.shape[1]):
+            x, p = est[b, i], cov[b, i]
+            ran = True
+            for j in range(4):
+                if not np.isfinite(x[j]):
+                    ran = False
+                for m in range(4):
+                    if not np.isfinite(p[j, m]):
+                        ran = False
+            if not ran:
+                out[b, i] = np.nan
+                continue
+            r = rate[b, i]
+            w_rate = 0.0
+            u_rate = 0.0
+            v_rate = 0.0
+            for m in range(3):
+                w_rate += (w[m] - x[2] * u[m] - x[3] * v[m]) * r[m]
+                u_rate += u[m] * r[m]
+                v_rate += v[m] * r[m]
+            h = (1.0 - x[1]) * w_rate - x[0]
+            jac[0] = -1.0
+            jac[1] = -w_rate
+            jac[2] = -(1.0 - x[1]) * u_rate
+            jac[3] = -(1.0 - x[1]) * v_rate
+            hph = 0.0
+            for j in range(4):
+                for m in range(4):
+                    hph += jac[j] * p[j, m] * jac[m]
+            r0 = noise * noise
+            for m in range(3):
+                acc = 0.0
+                for m2 in range(3):
+                    axis = w[m2] - before[2] * u[m2] - before[3] * v[m2]
+                    acc += (1.0 - before[1]) * axis * tinv[m2, m]
+                acc *= tnoise[m]
+                r0 += acc * acc
+            resid = z[b, i] - h
+            out[b, i] = (resid * resid + theta_r[b] * hph) / r0
+            before = x
+
+
+def period_measurement_statistic(
+    ukf: BatchedUKF, epoch: np.ndarray, x_prev: np.ndarray, theta_r: np.ndarray
+) -> np.ndarray:
+    """:func:`measurement_statistic` of the period ``ukf`` has just run (its UKF keeping each
+    epoch's covariance and estimate), over its ``epoch`` (n, P)
+    (:meth:`~qkf.redundant_gyros.batched_ukf.BatchedUKF.period_epochs`), from the estimates
+    ``x_prev`` (n, 4) before it, with ``θ̂_R`` ``theta_r`` (n,)."""
+    rows = np.arange(ukf.n)[:, None]
+    z, rate = ukf.z[rows, epoch], ukf.rate[rows, epoch]
+    return measurement_statistic(ukf.setup, ukf.est, ukf.cov, x_prev, theta_r, z, rate)
+
+
+Q_HALF_DOF = 2.0
+"""Half the entries an epoch's process statistic sums (the four states)."""
+R_HALF_DOF = 0.5
+"""Half the entries an epoch's measurement statistic sums (one reading)."""
+
+
+@dataclass
+class ScalePosterior:
+    """The inverse-Gamma posteriors ``IG(α, β)`` (n,) of one noise scale over ``n`` episodes
+    (module docstring); ``half_dof`` is half the entries an epoch's statistic sums
+    (:data:`Q_HALF_DOF`, :data:`R_HALF_DOF`)."""
+
+    alpha: np.ndarray
+    beta: np.ndarray
+    half_dof: float
+
+    @classmethod
+    def prior(cls, n: int, mean: float, epochs: float, half_dof: float) -> ScalePosterior:
+        """A prior at ``mean`` worth ``epochs`` epochs of statistics, for ``n`` episodes."""
+        alpha = half_dof * epochs
+        return cls(np.full(n, alpha), np.full(n, alpha * mean), half_dof)
+
+    def restart(self, rows: np.ndarray, mean: float, epochs: float) -> None:
+        """Rows ``rows`` back to :meth:`prior`'s ``(mean, epochs)``."""
+        alpha = self.half_dof * epochs
+        self.alpha[rows], self.beta[rows] = alpha, alpha * mean
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """``θ̂ = E[θ⁻¹]⁻¹ = β/α`` (n,)."""
+        return np.asarray(self.beta / self.alpha)
+
+    def update(self, stats: np.ndarray, rho: float) -> np.ndarray:
+        """Forget by ``rho`` (``α ← ρ α``, ``β ← ρ β``), then add a period's statistics (n, P)
+        (NaN: epochs not run); the estimate ``θ̂ = β/α`` (n,) after it."""
+        ran = np.isfinite(stats)
+        self.alpha = rho * self.alpha + self.half_dof * ran.sum(axis=1)
+        self.beta = rho * self.beta + 0.5 * np.where(ran, stats, 0.0).sum(axis=1)
+        return self.estimate
 
 
 def _ran(est: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -177,15 +272,14 @@ def run_rule_traced(b: EpisodeBatch, rule: VbRule) -> tuple[np.ndarray, np.ndarr
     b.restart_for_covariances("VB")
     lo, hi = b.kappa_range()
     per = float(ukf.period)
-    alpha_q, beta_q = np.full(ukf.n, 2.0 * per), np.full(ukf.n, 2.0 * per * rule.kappa0)
-    alpha_r, beta_r = np.full(ukf.n, 0.5 * per), np.full(ukf.n, 0.5 * per)
+    post_q = ScalePosterior.prior(ukf.n, rule.kappa0, per, Q_HALF_DOF)
+    post_r = ScalePosterior.prior(ukf.n, 1.0, per, R_HALF_DOF)
     rho = 2.0 ** (-1.0 / rule.halflife)
     kappa = np.full(ukf.n, rule.kappa0)
     theta_q, theta_r = kappa.copy(), np.ones(ukf.n)
     total = np.zeros(ukf.n)
     n_periods = -(-ukf.n_steps // ukf.period)
     trace_q, trace_r = np.empty((ukf.n, n_periods)), np.empty((ukf.n, n_periods))
-    rows = np.arange(ukf.n)[:, None]
     for t in range(n_periods):
         x_prev, p_prev = ukf.x.copy(), ukf.p.copy()
         k0, _ = ukf.advance(kappa)
@@ -194,20 +288,11 @@ def run_rule_traced(b: EpisodeBatch, rule: VbRule) -> tuple[np.ndarray, np.ndarr
             epoch = ukf.period_epochs(k0)
             q_step = ukf.nominal_process_noise(epoch)
             s_q = process_statistic(ukf.est, ukf.cov, x_prev, p_prev, q_step, kappa, theta_r)
-            s_r = measurement_statistic(
-                ukf.setup, ukf.est, ukf.cov, x_prev, theta_r, ukf.z[rows, epoch],
-                ukf.rate[rows, epoch],
-            )  # fmt: skip
-            ran = np.isfinite(s_q)
-            n_run = ran.sum(axis=1)
+            s_r = period_measurement_statistic(ukf, epoch, x_prev, theta_r)
             if "q" in rule.adapt:
-                alpha_q = rho * alpha_q + 2.0 * n_run
-                beta_q = rho * beta_q + 0.5 * np.where(ran, s_q, 0.0).sum(axis=1)
-                theta_q = beta_q / alpha_q
+                theta_q = post_q.update(s_q, rho)
             if "r" in rule.adapt:
-                alpha_r = rho * alpha_r + 0.5 * n_run
-                beta_r = rho * beta_r + 0.5 * np.where(ran, s_r, 0.0).sum(axis=1)
-                theta_r = beta_r / alpha_r
+                theta_r = post_r.update(s_r, rho)
             kappa = np.clip(theta_q / theta_r, lo, hi)
         trace_q[:, t], trace_r[:, t] = theta_q, theta_r
     return b.criterion(total), trace_q, trace_r
@@ -227,9 +312,12 @@ def tune_on(batch: EpisodeBatch) -> tuple[VbRule, float]:
 __all__ = [
     "ADAPTS",
     "HALF_LIVES",
+    "Q_HALF_DOF",
+    "R_HALF_DOF",
+    "ScalePosterior",
     "VbRule",
     "measurement_statistic",
-    "measurement_terms",
+    "period_measurement_statistic",
     "process_statistic",
     "run_rule_on",
     "run_rule_traced",
