@@ -30,7 +30,9 @@ so ``P⁻_k = P_{k−1} + Q_k``, ``Q_k = κ Q₀_k`` the filter's, ``Δx̂_k = x
 
       s_R,k = ((z_k − h(x̂_k))² + θ̂_R H_k P_k H_kᵀ) / R₀(x̂_{k−1})   (mean θ_R, linear model)
 
-  (``R₀`` at the predicted state, where the filter evaluates it).
+  (``R₀`` at the predicted state, where the filter evaluates it), compiled
+  (:func:`measurement_statistic`; its numpy reference is ``tests/vb_noise_numpy.py``): the
+  environment ``qkf/RedundantGyroCalibration-v4`` observes ``θ̂_R`` from it too.
 
 The scales' posteriors are updated once per decision period from the period's epochs, with a
 forgetting factor ``ρ = 2^(−1/h)`` per period (half-life ``h`` periods, Särkkä & Nummenmaa's
