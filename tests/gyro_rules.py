@@ -1,10 +1,10 @@
 """Checks shared by the tests of the gyro adaptive κ rules (``nis_adaptive``, ``sage_husa``,
-``vb_noise``): a rule that never adapts is the constant κ, and the tuned rule is never worse
-than the best constant on its tuning episodes."""
+``vb_noise``): a rule follows its equations stepped by hand, a rule that never adapts is the
+constant κ, and the tuned rule is never worse than the best constant on its tuning episodes."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pytest
@@ -12,6 +12,14 @@ import pytest
 from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros.config import GyrosConfig
 from qkf.redundant_gyros.methods import GYRO_METHODS
+
+
+def assert_follows_by_hand(
+    seeds: Sequence[int], j: np.ndarray, by_hand: Callable[[int], float]
+) -> None:
+    """``j`` (one per seed) is ``by_hand(seed)``, the rule stepped with filterpy's UKF epoch by
+    epoch, to 1e-6 (the compiled UKF equals filterpy's to rounding, and κ follows it)."""
+    np.testing.assert_allclose(j, [by_hand(s) for s in seeds], rtol=1e-6)
 
 
 def assert_constant_kappa(

@@ -12,7 +12,7 @@ from qkf.redundant_gyros import hindsight as hs
 from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros.ukf import CalibrationUKF
-from tests.gyro_rules import assert_constant_kappa
+from tests.gyro_rules import assert_constant_kappa, assert_follows_by_hand
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -43,9 +43,7 @@ def _by_hand(cfg, seed: int, rule: na.NisRule) -> float:  # type: ignore[no-unty
 @pytest.mark.parametrize("rule", [na.NisRule(1.0, 1.0, 1.0), na.NisRule(2.0, 3.0, 0.01)])
 def test_rule_follows_its_equations(rule: na.NisRule) -> None:
     cfg = load_config(FAMILY, SHORT)
-    j = na.run_rule(cfg, SEEDS, rule)
-    ref = [_by_hand(cfg, s, rule) for s in SEEDS]
-    np.testing.assert_allclose(j, ref, rtol=1e-6)
+    assert_follows_by_hand(SEEDS, na.run_rule(cfg, SEEDS, rule), lambda s: _by_hand(cfg, s, rule))
 
 
 def test_a_rule_without_gain_is_the_constant_kappa() -> None:

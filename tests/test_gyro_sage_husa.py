@@ -14,7 +14,11 @@ from qkf.redundant_gyros import load_config
 from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros import sage_husa as sh
 from qkf.redundant_gyros.ukf import CalibrationUKF
-from tests.gyro_rules import assert_constant_kappa, assert_tuning_nests_the_constants
+from tests.gyro_rules import (
+    assert_constant_kappa,
+    assert_follows_by_hand,
+    assert_tuning_nests_the_constants,
+)
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -88,9 +92,7 @@ def _by_hand(cfg, seed: int, rule: sh.SageHusaRule) -> float:  # type: ignore[no
 def test_rule_follows_its_equations(rule: sh.SageHusaRule) -> None:
     cfg = load_config(FAMILY, SHORT)
     batch = na.EpisodeBatch.of(cfg, SEEDS, keep_cov=True)
-    j = sh.run_rule_on(batch, rule)
-    ref = [_by_hand(cfg, s, rule) for s in SEEDS]
-    np.testing.assert_allclose(j, ref, rtol=1e-6)
+    assert_follows_by_hand(SEEDS, sh.run_rule_on(batch, rule), lambda s: _by_hand(cfg, s, rule))
 
 
 def test_a_rule_that_never_adapts_is_the_constant_kappa() -> None:

@@ -16,7 +16,11 @@ from qkf.redundant_gyros import nis_adaptive as na
 from qkf.redundant_gyros import vb_noise as vb
 from qkf.redundant_gyros.ukf import CalibrationUKF, measurement, measurement_variance
 from tests import vb_noise_numpy as vb_numpy
-from tests.gyro_rules import assert_constant_kappa, assert_tuning_nests_the_constants
+from tests.gyro_rules import (
+    assert_constant_kappa,
+    assert_follows_by_hand,
+    assert_tuning_nests_the_constants,
+)
 
 FAMILY = "gyro_noise_levels"
 SHORT = ["scenario.duration_s=160"]  # judged from 100 s (hindsight.SETTLED_S)
@@ -203,9 +207,7 @@ def _by_hand(cfg, seed: int, rule: vb.VbRule) -> float:  # type: ignore[no-untyp
 def test_rule_follows_its_equations(rule: vb.VbRule) -> None:
     cfg = load_config(FAMILY, SHORT)
     batch = na.EpisodeBatch.of(cfg, SEEDS, keep_cov=True)
-    j = vb.run_rule_on(batch, rule)
-    ref = [_by_hand(cfg, s, rule) for s in SEEDS]
-    np.testing.assert_allclose(j, ref, rtol=1e-6)
+    assert_follows_by_hand(SEEDS, vb.run_rule_on(batch, rule), lambda s: _by_hand(cfg, s, rule))
 
 
 def test_a_rule_that_never_adapts_is_the_constant_kappa() -> None:

@@ -64,7 +64,7 @@ from qkf.core.jit import kernel_jit
 from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
 from qkf.redundant_gyros.ukf import UkfSetup
-from qkf.redundant_gyros.ukf_compiled import CompiledSetup
+from qkf.redundant_gyros.ukf_compiled import CompiledSetup, Geometry
 
 Adapt = Literal["none", "q", "r", "qr"]
 ADAPTS: tuple[Adapt, ...] = ("q", "r", "qr")
@@ -131,9 +131,8 @@ def measurement_statistic(
     the calibrated gyro's readings and ``rate`` (n, P, 3) the triad rates (deg/s). Compiled
     (:func:`_post_fit_rows`); its numpy reference is ``tests/vb_noise_numpy.py``."""
     out = np.empty(z.shape)
-    w, u, v, tinv, tnoise, noise, _ = CompiledSetup.of(setup).geometry
-    _post_fit_rows(est, cov, x_prev, np.asarray(theta_r, dtype=float), z, rate, w, u, v, tinv,
-                   tnoise, noise, out)  # fmt: skip
+    theta = np.asarray(theta_r, dtype=float)
+    _post_fit_rows(est, cov, x_prev, theta, z, rate, CompiledSetup.of(setup).geometry, out)
     return out
 
 
@@ -145,18 +144,15 @@ def _post_fit_rows(
     theta_r: np.ndarray,
     z: np.ndarray,
     rate: np.ndarray,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
+    geometry: Geometry,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """``out[b, i] = ((z − h(x̂_i))² + θ̂_R H P_i Hᵀ) / R₀(x̂_{i−1})`` (module docstring) with
     ``h(x) = (1 − λ) w̄ᵀ ω̂ − b``, ``H = [−1, −w̄ᵀω̂, −(1 − λ) uᵀω̂, −(1 − λ) vᵀω̂]`` and
     ``R₀(x) = σ² + ‖(1 − λ) w̄ᵀ G_H⁻¹ diag(s_H)‖²`` (:mod:`~qkf.redundant_gyros.ukf`), NaN
-    where the epoch did not run; serial over the rows (a period is a few thousand epochs)."""
+    where the epoch did not run; serial over the rows (a period is a few thousand epochs).
+    ``geometry``: :attr:`CompiledSetup.geometry`."""
+    w, u, v, tinv, tnoise, noise, _ = geometry
     jac = np.empty(4)
     for b in range(est.shape[0]):
         before = x_prev[b]
