@@ -9,6 +9,8 @@ drawn drift and white-noise factors with what a causal estimator sees:
 
 * the period means of the v3 observation's NIS and lag-1 innovation product, averaged over
   the first periods of a run at a fixed κ (what a single-filter policy observes);
+* the v4 observation's ``log10 θ̂_R``, the VB estimate of the white noise's scale from the
+  start (what ``vb-noise`` reads), after 1, 10, 30 periods and at the end;
 * the κ of the action set with the largest innovation log-likelihood so far, from a bank of
   one filter per κ (multiple-model adaptive estimation), after 6, 11, 31 and 60 periods;
 
@@ -85,6 +87,12 @@ def main() -> None:
             f = obs[lo:hi, :, col].mean(axis=0)
             print(f"| {name}, periods {lo}–{hi} at κ = {kappa_mid:.3g} | {rho(f, best):+.2f} | "
                   f"{rho(f, levels[:, 0]):+.2f} | {rho(f, levels[:, 1]):+.2f} |")  # fmt: skip
+    obs4, _ = run_constant(cfg, seeds, kappa_mid, "v4")
+    for after in (1, 10, 30, obs4.shape[0]):
+        f = obs4[after - 1, :, 6]
+        print(f"| VB log θ̂_R (v4) after {after} periods at κ = {kappa_mid:.3g} | "
+              f"{rho(f, best):+.2f} | {rho(f, levels[:, 0]):+.2f} | "
+              f"{rho(f, levels[:, 1]):+.2f} |")  # fmt: skip
     cum = np.stack([run_constant(cfg, seeds, float(k), "v2")[1] for k in kappas]).cumsum(axis=1)
     for after in (6, 11, 31, cum.shape[1]):
         khat = np.log10(kappas[cum[:, after - 1].argmax(axis=0)])
