@@ -117,7 +117,7 @@ class GyroEpisodes(BatchedUKF):
         self.actions = ActionMap(np.asarray(self.cfg.environment.actions.values()), action_type)
         self.action_space: spaces.Space[Any] = self.actions.space
         # θ̂_R of each episode so far (vb_noise: a prior worth one period at the assumed noise)
-        self.noise_scale = ScalePosterior.prior(n, 1.0, float(steps), R_HALF_DOF)
+        self.noise_scale = ScalePosterior.prior(n, 1.0, float(self.period), R_HALF_DOF)
         self.observation_space = observation_box(self.observation.size)
         self.needs_nominal = self.observation.uses_nominal or self.reward.uses_nominal
         kappas = self.actions.kappas
@@ -144,11 +144,12 @@ class GyroEpisodes(BatchedUKF):
     def run(self, kappa: np.ndarray, position: np.ndarray) -> GyroStep:
         """One decision period of every episode with ``kappa`` (N,) (at ``position`` (N,) on
         the action scale, for the observation)."""
-        x_prev = self.x.copy()
+        # the estimates before the period, for the VB R scale (vb_noise, no forgetting) of v4
+        x_prev = self.x.copy() if self.observation.uses_noise_scale else None
         k0, steps = self.advance(kappa, self.needs_nominal)
         k1 = k0 + steps
         theta_r = np.full(self.n, np.nan)
-        if self.observation.uses_noise_scale:  # vb_noise's R scale, no forgetting
+        if x_prev is not None:
             before = self.noise_scale.estimate
             s_r = period_measurement_statistic(self, self.period_epochs(k0), x_prev, before)
             theta_r = self.noise_scale.update(s_r, 1.0)

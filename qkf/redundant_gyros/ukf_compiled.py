@@ -92,6 +92,27 @@ def _h(
 
 
 @kernel_jit(nrt=True, fastmath=False)
+def noise_variance(
+    s: np.ndarray,
+    w: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tinv: np.ndarray,
+    tnoise: np.ndarray,
+    noise: float,
+) -> float:  # pragma: no cover - compiled
+    """``R(x) = σ² + ‖(1 − λ) w̄(x)ᵀ G_H⁻¹ diag(s_H)‖²`` of state ``s``, (deg/s)²."""
+    rr = noise * noise
+    for m in range(3):
+        acc = 0.0
+        for m2 in range(3):
+            acc += (1.0 - s[1]) * (w[m2] - s[2] * u[m2] - s[3] * v[m2]) * tinv[m2, m]
+        acc *= tnoise[m]
+        rr += acc * acc
+    return rr
+
+
+@kernel_jit(nrt=True, fastmath=False)
 def step_work() -> Work:
     """Work arrays of :func:`ukf_step`: chol, scaled, sigma points, h(χ), P_xz."""
     n = DIM
@@ -141,15 +162,7 @@ def ukf_step(
     for j in range(2 * n + 1):
         hs[j] = _h(sig[j], w, u, v, r)
         zp += (wm0 if j == 0 else wi) * hs[j]
-    # R at the predicted state: σ² + ‖a(x)ᵀ G_H⁻¹ diag(s_H)‖²
-    rr = noise * noise
-    for m in range(3):
-        acc = 0.0
-        for m2 in range(3):
-            acc += (1.0 - x[1]) * (w[m2] - x[2] * u[m2] - x[3] * v[m2]) * tinv[m2, m]
-        acc *= tnoise[m]
-        rr += acc * acc
-    s = rr
+    s = noise_variance(x, w, u, v, tinv, tnoise, noise)  # R at the predicted state
     for i in range(n):
         pxz[i] = 0.0
     for j in range(2 * n + 1):
@@ -316,4 +329,12 @@ run_periods = row_loops(_period_row, "x.shape[0]", fastmath=False).parallel
 episodes in parallel."""
 
 
-__all__ = ["SUMS", "CompiledSetup", "run_periods", "run_span", "step_work", "ukf_step"]
+__all__ = [
+    "SUMS",
+    "CompiledSetup",
+    "noise_variance",
+    "run_periods",
+    "run_span",
+    "step_work",
+    "ukf_step",
+]

@@ -70,7 +70,7 @@ from qkf.core.jit import kernel_jit
 from qkf.redundant_gyros.batched_ukf import BatchedUKF
 from qkf.redundant_gyros.nis_adaptive import EpisodeBatch
 from qkf.redundant_gyros.ukf import UkfSetup
-from qkf.redundant_gyros.ukf_compiled import CompiledSetup, Geometry
+from qkf.redundant_gyros.ukf_compiled import CompiledSetup, Geometry, noise_variance
 
 Adapt = Literal["none", "q", "r", "qr"]
 ADAPTS: tuple[Adapt, ...] = ("q", "r", "qr")
@@ -191,14 +191,7 @@ def _post_fit_rows(
             for j in range(4):
                 for m in range(4):
                     hph += jac[j] * p[j, m] * jac[m]
-            r0 = noise * noise
-            for m in range(3):
-                acc = 0.0
-                for m2 in range(3):
-                    axis = w[m2] - before[2] * u[m2] - before[3] * v[m2]
-                    acc += (1.0 - before[1]) * axis * tinv[m2, m]
-                acc *= tnoise[m]
-                r0 += acc * acc
+            r0 = noise_variance(before, w, u, v, tinv, tnoise, noise)
             resid = z[b, i] - h
             out[b, i] = (resid * resid + theta_r[b] * hph) / r0
             before = x
@@ -235,8 +228,9 @@ class ScalePosterior:
     @classmethod
     def prior(cls, n: int, mean: float, epochs: float, half_dof: float) -> ScalePosterior:
         """A prior at ``mean`` worth ``epochs`` epochs of statistics, for ``n`` episodes."""
-        alpha = half_dof * epochs
-        return cls(np.full(n, alpha), np.full(n, alpha * mean), half_dof)
+        post = cls(np.empty(n), np.empty(n), half_dof)
+        post.restart(np.arange(n), mean, epochs)
+        return post
 
     def restart(self, rows: np.ndarray, mean: float, epochs: float) -> None:
         """Rows ``rows`` back to :meth:`prior`'s ``(mean, epochs)``."""
