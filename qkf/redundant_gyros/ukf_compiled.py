@@ -92,16 +92,10 @@ def _h(
 
 
 @kernel_jit(nrt=True, fastmath=False)
-def noise_variance(
-    s: np.ndarray,
-    w: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    tinv: np.ndarray,
-    tnoise: np.ndarray,
-    noise: float,
-) -> float:  # pragma: no cover - compiled
-    """``R(x) = σ² + ‖(1 − λ) w̄(x)ᵀ G_H⁻¹ diag(s_H)‖²`` of state ``s``, (deg/s)²."""
+def noise_variance(s: np.ndarray, geometry: Geometry) -> float:  # pragma: no cover - compiled
+    """``R(x) = σ² + ‖(1 − λ) w̄(x)ᵀ G_H⁻¹ diag(s_H)‖²`` of state ``s``, (deg/s)², with the
+    unit's ``geometry`` (:attr:`CompiledSetup.geometry`)."""
+    w, u, v, tinv, tnoise, noise, _ = geometry
     rr = noise * noise
     for m in range(3):
         acc = 0.0
@@ -141,7 +135,7 @@ def ukf_step(
     (deg/s), step ``dt`` (s) and factor ``kap`` (module docstring), the unit's ``geometry`` and
     the Merwe ``weights`` (:class:`CompiledSetup`). Returns the innovation ``ν`` and its
     variance ``S``; ``S`` is NaN if the filter failed (``x``, ``p`` undefined)."""
-    w, u, v, tinv, tnoise, noise, q2 = geometry
+    w, u, v, _, _, _, q2 = geometry
     chol, scaled, sig, hs, pxz = work
     n = 4
     lam_n, wm0, wc0, wi = weights[0], weights[1], weights[2], weights[3]
@@ -162,7 +156,7 @@ def ukf_step(
     for j in range(2 * n + 1):
         hs[j] = _h(sig[j], w, u, v, r)
         zp += (wm0 if j == 0 else wi) * hs[j]
-    s = noise_variance(x, w, u, v, tinv, tnoise, noise)  # R at the predicted state
+    s = noise_variance(x, geometry)  # R at the predicted state
     for i in range(n):
         pxz[i] = 0.0
     for j in range(2 * n + 1):

@@ -158,7 +158,7 @@ def _post_fit_rows(
     ``R₀(x) = σ² + ‖(1 − λ) w̄ᵀ G_H⁻¹ diag(s_H)‖²`` (:mod:`~qkf.redundant_gyros.ukf`), NaN
     where the epoch did not run; serial over the rows (a period is a few thousand epochs).
     ``geometry``: :attr:`CompiledSetup.geometry`."""
-    w, u, v, tinv, tnoise, noise, _ = geometry
+    w, u, v, _, _, _, _ = geometry
     jac = np.empty(4)
     for b in range(est.shape[0]):
         before = x_prev[b]
@@ -191,7 +191,7 @@ def _post_fit_rows(
             for j in range(4):
                 for m in range(4):
                     hph += jac[j] * p[j, m] * jac[m]
-            r0 = noise_variance(before, w, u, v, tinv, tnoise, noise)
+            r0 = noise_variance(before, geometry)
             resid = z[b, i] - h
             out[b, i] = (resid * resid + theta_r[b] * hph) / r0
             before = x
